@@ -1,0 +1,137 @@
+"""The `epipolar_baseline` motion decision: one dominant epipolar geometry, per-pixel residuals.
+
+The camera's own motion is the dominant rigid motion of the scene, so a RANSAC fit of one fundamental matrix
+to dense-flow correspondences recovers it; a pixel whose correspondence lies far from its epipolar line
+(Sampson distance, Hartley & Zisserman eq. 11.9) moves by itself. This is the baseline the paper's fused
+method improves on: it is blind to motion inside the epipolar plane (a car driving ahead of the camera in its
+own direction, or straight towards it), which a flow model catches.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from moseg_ros.frontend.flow import forward_backward_error, pixel_grid
+
+
+@dataclass(frozen=True)
+class BaselineConfig:
+    """Settings of the epipolar baseline (pixels are at the working resolution)."""
+
+    grid_step: int = 6
+    fb_max_px: float = 1.0
+    ransac_threshold_px: float = 0.5
+    residual_threshold_px: float = 1.5
+    residual_noise_factor: float = 4.0
+    min_parallax_px: float = 0.3
+    min_inliers: int = 30
+
+
+@dataclass
+class EpipolarResidual:
+    """Per-pixel epipolar evidence for the current frame.
+
+    Attributes:
+        residual: (H, W) float32 Sampson distance in pixels (sqrt of eq. 11.9); 0 where unknown.
+        valid: (H, W) bool, pixels whose flow passed the forward-backward check.
+        threshold: residual above which a pixel counts as independently moving this frame.
+        fundamental: (3, 3) F with x_prev^T F x_cur = 0, or None when the geometry was not estimable.
+        inlier_ratio: RANSAC inlier fraction of the sampled correspondences.
+    """
+
+    residual: np.ndarray
+    valid: np.ndarray
+    threshold: float
+    fundamental: np.ndarray | None
+    inlier_ratio: float
+
+
+def sampson_distance_map(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """Sampson distance of many correspondences under one F (Hartley & Zisserman eq. 11.9).
+
+    Args:
+        fundamental: (3, 3) F with matches^T F points = 0.
+        points: (..., 2) pixel positions x.
+        matches: (..., 2) corresponding positions x'.
+
+    Returns:
+        (...) squared Sampson distance (x'^T F x)^2 / ((Fx)_1^2 + (Fx)_2^2 + (F^T x')_1^2 + (F^T x')_2^2).
+    """
+    ones = np.ones(points.shape[:-1] + (1,), dtype=np.float64)
+    x = np.concatenate([points, ones], axis=-1)
+    xp = np.concatenate([matches, ones], axis=-1)
+    fx = x @ fundamental.T
+    ftxp = xp @ fundamental
+    numerator = np.einsum("...i,...i->...", xp, fx) ** 2
+    denominator = fx[..., 0] ** 2 + fx[..., 1] ** 2 + ftxp[..., 0] ** 2 + ftxp[..., 1] ** 2
+    return numerator / np.maximum(denominator, 1e-12)
+
+
+def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
+                      config: BaselineConfig = BaselineConfig()) -> EpipolarResidual:
+    """Fit the dominant epipolar geometry between two frames and score every pixel of the current one.
+
+    Args:
+        to_previous: (H, W, 2) flow from the current frame to the previous one.
+        to_current: (H, W, 2) flow from the previous frame to the current one (for the forward-backward check).
+        config: thresholds.
+
+    Returns:
+        The per-pixel residual map and the fitted geometry. When the camera barely moved or RANSAC found too
+        few inliers the residual is all zeros (no evidence either way) and ``fundamental`` is None.
+    """
+    h, w = to_previous.shape[:2]
+    grid = pixel_grid(h, w)
+    valid = forward_backward_error(to_previous, to_current) < config.fb_max_px
+    residual = np.zeros((h, w), dtype=np.float32)
+    empty = EpipolarResidual(residual, valid, np.inf, None, 0.0)
+
+    step = config.grid_step
+    sample_ok = valid[::step, ::step]
+    points = grid[::step, ::step][sample_ok]
+    matches = points + to_previous[::step, ::step][sample_ok]
+    if len(points) < config.min_inliers:
+        return empty
+    if np.median(np.linalg.norm(matches - points, axis=1)) < config.min_parallax_px:
+        return empty
+    fundamental, inliers = cv2.findFundamentalMat(points, matches, cv2.USAC_MAGSAC,
+                                                  config.ransac_threshold_px, 0.999, 2000)
+    if fundamental is None or fundamental.shape != (3, 3) or inliers is None:
+        return empty
+    inliers = inliers.ravel().astype(bool)
+    if inliers.sum() < config.min_inliers:
+        return empty
+
+    distance = np.sqrt(sampson_distance_map(fundamental, grid, grid + to_previous)).astype(np.float32)
+    inlier_distance = np.sqrt(sampson_distance_map(fundamental, points[inliers], matches[inliers]))
+    noise = 1.4826 * np.median(inlier_distance)
+    threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
+    residual[valid] = distance[valid]
+    return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()))
+
+
+def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,
+                      min_fraction: float = 0.3, min_pixels: int = 20) -> np.ndarray:
+    """Instance ids of which a large enough share of reliable pixels moves independently.
+
+    Args:
+        instances: (H, W) int32 ids, 0 = background.
+        moving: (H, W) bool per-pixel evidence.
+        valid: (H, W) bool, where the evidence is reliable.
+        min_fraction: share of an instance's valid pixels that must move.
+        min_pixels: instances with fewer valid pixels are left undecided (not dynamic).
+
+    Returns:
+        (D,) int32 sorted ids of the dynamic instances.
+    """
+    ids = instances.ravel()
+    n = int(ids.max(initial=0)) + 1
+    valid_count = np.bincount(ids[valid.ravel()], minlength=n)
+    moving_count = np.bincount(ids[(moving & valid).ravel()], minlength=n)
+    fraction = moving_count / np.maximum(valid_count, 1)
+    dynamic = (fraction >= min_fraction) & (valid_count >= min_pixels)
+    dynamic[0] = False
+    return np.flatnonzero(dynamic).astype(np.int32)

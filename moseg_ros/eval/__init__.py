@@ -1,0 +1,1 @@
+"""Benchmarks: one module per data set, each a `moseg eval` sub-command."""

@@ -1,0 +1,1 @@
+"""Images -> window: optical flow, point tracks, instances, and the sliding window holding them."""

@@ -1,0 +1,84 @@
+"""Weight-free instance proposals and a tracker that keeps instance ids stable over time.
+
+Without an upstream instance topic the baseline proposes regions from its own motion evidence: connected
+components of a cleaned binary map. The tracker matches each frame's regions to the previous frame's by
+mask IoU with the Hungarian method (scipy.optimize.linear_sum_assignment), so an object keeps its id.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+
+def propose_regions(evidence: np.ndarray, min_area: int, close_px: int = 5) -> np.ndarray:
+    """Connected components of a binary evidence map after a morphological close and open.
+
+    Args:
+        evidence: (H, W) bool, pixels that look independently moving.
+        min_area: components smaller than this many pixels are dropped as noise.
+        close_px: structuring-element size that bridges gaps inside one object.
+
+    Returns:
+        (H, W) int32 labels, 0 = no region, 1..R the regions (unordered, not stable over time).
+    """
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px, close_px))
+    mask = cv2.morphologyEx(evidence.astype(np.uint8), cv2.MORPH_CLOSE, kernel)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    keep = np.zeros(count, dtype=np.int32)
+    large = np.flatnonzero(stats[1:, cv2.CC_STAT_AREA] >= min_area) + 1
+    keep[large] = np.arange(1, large.size + 1, dtype=np.int32)
+    return keep[labels]
+
+
+def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cur: int) -> np.ndarray:
+    """IoU between every labelled region of two label maps, from one joint histogram.
+
+    Args:
+        previous: (H, W) int labels 0..n_prev.
+        current: (H, W) int labels 0..n_cur.
+
+    Returns:
+        (n_prev, n_cur) float IoU of region i+1 of ``previous`` with region j+1 of ``current``.
+    """
+    joint = np.bincount(previous.ravel().astype(np.int64) * (n_cur + 1) + current.ravel(),
+                        minlength=(n_prev + 1) * (n_cur + 1)).reshape(n_prev + 1, n_cur + 1)
+    inter = joint[1:, 1:].astype(np.float64)
+    union = joint[1:, :].sum(1)[:, None] + joint[:, 1:].sum(0)[None, :] - inter
+    return inter / np.maximum(union, 1.0)
+
+
+class InstanceTracker:
+    """Gives regions ids that persist across frames (IoU matching with the previous frame)."""
+
+    def __init__(self, min_iou: float = 0.2) -> None:
+        self.min_iou = min_iou
+        self._previous: np.ndarray | None = None
+        self._next_id = 1
+
+    def reset(self) -> None:
+        """Forget all tracks (after a size change or a jump back in time)."""
+        self._previous = None
+        self._next_id = 1
+
+    def update(self, regions: np.ndarray) -> np.ndarray:
+        """Relabel ``regions`` ((H, W) int32, 0..R) with persistent ids; returns (H, W) int32."""
+        n_cur = int(regions.max(initial=0))
+        ids = np.zeros(n_cur + 1, dtype=np.int32)
+        if self._previous is not None and self._previous.shape == regions.shape and n_cur:
+            prev_ids = np.unique(self._previous[self._previous > 0])
+            if prev_ids.size:
+                compact = np.searchsorted(prev_ids, self._previous) + 1
+                compact[self._previous == 0] = 0
+                iou = mask_iou_matrix(compact, regions, prev_ids.size, n_cur)
+                rows, cols = linear_sum_assignment(-iou)
+                good = iou[rows, cols] >= self.min_iou
+                ids[cols[good] + 1] = prev_ids[rows[good]]
+        fresh = np.flatnonzero(ids[1:] == 0) + 1
+        ids[fresh] = np.arange(self._next_id, self._next_id + fresh.size, dtype=np.int32)
+        self._next_id += fresh.size
+        tracked = ids[regions]
+        self._previous = tracked
+        return tracked

@@ -1,0 +1,36 @@
+"""One decoded camera frame from any supported image message: the pipeline's input format."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from moseg_ros.io.image import ImageDecodeError, compressed_to_array, image_to_array, to_gray, to_rgb
+
+GREY_ENCODINGS = frozenset({"mono8", "mono16", "8UC1", "16UC1"})
+
+
+def decode_frame(msg: Any) -> np.ndarray:
+    """Decode a sensor_msgs/Image or CompressedImage into the pipeline's frame.
+
+    Grey encodings give (H, W) uint8; colour, Bayer and YUV give (H, W, 3) uint8 RGB. Raises
+    ImageDecodeError (a ValueError) with the reason for anything that is not a usable camera image.
+    """
+    if hasattr(msg, "format"):
+        frame = compressed_to_array(msg)
+        return (frame >> 8).astype(np.uint8) if frame.dtype == np.uint16 else frame
+    pixels = image_to_array(msg)
+    if msg.encoding in GREY_ENCODINGS:
+        return to_gray(pixels, msg.encoding)
+    return to_rgb(pixels, msg.encoding)
+
+
+def decode_instances(msg: Any) -> np.ndarray:
+    """Decode an instance-id image (32SC1 or 16UC1, 0 = no object) into (H, W) int32 ids."""
+    if msg.encoding not in ("32SC1", "16UC1", "mono16", "8UC1", "mono8"):
+        raise ImageDecodeError(f"instance images must be 32SC1 or 16UC1 ids, got {msg.encoding!r}")
+    ids = image_to_array(msg)
+    if ids.ndim != 2:
+        raise ImageDecodeError(f"instance images must have one channel, got shape {ids.shape}")
+    return ids.astype(np.int32)

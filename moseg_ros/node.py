@@ -1,0 +1,312 @@
+"""The `segmenter` node: a thin rclpy adapter around moseg_ros.pipeline.Pipeline.
+
+Subscribes ``image`` (sensor_msgs/Image or CompressedImage via ``image_transport_compressed``), optionally
+``instances``; publishes ``~/dynamic_mask``, ``~/static_mask``, ``~/instance_labels``, ``~/debug_image``
+(only while subscribed) and ``/diagnostics``. Every output carries the input image's header unchanged.
+
+The subscription callback only enqueues; one worker thread decodes and segments, so a slow frame never
+blocks the executor. The queue is bounded and the newest frames win: an overflow drops the oldest frame
+and counts it in the diagnostics.
+"""
+
+from __future__ import annotations
+
+import collections
+import sys
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, HistoryPolicy
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+from moseg_ros.core.baseline import BaselineConfig
+from moseg_ros.io.frames import decode_frame, decode_instances
+from moseg_ros.io.image import image_from_array
+from moseg_ros.pipeline import METHODS, FrameResult, Pipeline, PipelineConfig
+from moseg_ros.render import debug_overlay
+
+QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
+
+
+def _describe(text: str, *, choices: tuple[str, ...] = (), low: float | None = None,
+              high: float | None = None, integer: bool = False) -> ParameterDescriptor:
+    """A read-only parameter descriptor with its allowed range or choices in the text."""
+    descriptor = ParameterDescriptor(description=text, read_only=True)
+    if choices:
+        descriptor.additional_constraints = "one of: " + ", ".join(choices)
+    if low is not None and high is not None:
+        if integer:
+            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+        else:
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+    return descriptor
+
+
+# name -> (default, descriptor). Ranges are enforced by rclpy at declaration time.
+PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
+    "image_qos": ("sensor_data", _describe("QoS of the image subscription", choices=QOS_CHOICES)),
+    "qos_depth": (5, _describe("history depth of the subscriptions", low=1, high=100, integer=True)),
+    "compressed_input": (False, _describe("subscribe image as sensor_msgs/CompressedImage")),
+    "use_instances": (False, _describe("pair each image with an upstream instance-id image on `instances`")),
+    "instances_timeout_s": (0.2, _describe("how long a frame waits for its instance image", low=0.0, high=5.0)),
+    "queue_size": (2, _describe("frames waiting for the worker; the oldest is dropped on overflow",
+                                low=1, high=100, integer=True)),
+    "method": ("epipolar_baseline", _describe("motion decision method", choices=METHODS)),
+    "working_width": (640, _describe("frames are processed at this width (pixels)", low=64, high=4096,
+                                     integer=True)),
+    "flow_preset": ("fast", _describe("DIS optical flow preset", choices=("ultrafast", "fast", "medium"))),
+    "mask_margin_px": (6, _describe("dilation of published masks (output pixels)", low=0, high=100,
+                                    integer=True)),
+    "min_region_area": (60, _describe("smallest moving region kept (working pixels)", low=1, high=100000,
+                                      integer=True)),
+    "instance_min_fraction": (0.3, _describe("share of an instance that must move to flag it", low=0.01,
+                                             high=1.0)),
+    "residual_threshold_px": (1.5, _describe("epipolar residual above which a pixel moves (working px)",
+                                             low=0.1, high=50.0)),
+    "diagnostics_period_s": (1.0, _describe("period of /diagnostics", low=0.1, high=60.0)),
+    "warn_throttle_s": (5.0, _describe("minimum time between repeated warnings", low=0.0, high=600.0)),
+}
+
+
+@dataclass
+class _Counters:
+    frames_in: int = 0
+    frames_out: int = 0
+    dropped: int = 0
+    bad_input: int = 0
+    resets: int = 0
+    failures: int = 0
+    no_instances: int = 0
+
+
+class SegmenterNode(Node):
+    """Publishes per-instance dynamic masks for every image it receives."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("segmenter", **kwargs)
+        for name, (default, descriptor) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor)
+        self.settings = {name: self.get_parameter(name).value for name in PARAMETERS}
+        self._check_choices()
+        self.pipeline = Pipeline(self._pipeline_config())
+
+        self.counters = _Counters()
+        self._latencies: collections.deque[float] = collections.deque(maxlen=500)
+        self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
+        self._departures: collections.deque[float] = collections.deque(maxlen=100)
+        self._queue: collections.deque[tuple[Any, float]] = collections.deque()
+        self._instances: collections.OrderedDict[tuple[int, int], Any] = collections.OrderedDict()
+        self._wake = threading.Condition()
+        self._running = True
+        self.camera_matrix: np.ndarray | None = None
+
+        reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+        self.pub_dynamic = self.create_publisher(Image, "~/dynamic_mask", reliable)
+        self.pub_static = self.create_publisher(Image, "~/static_mask", reliable)
+        self.pub_labels = self.create_publisher(Image, "~/instance_labels", reliable)
+        self.pub_debug = self.create_publisher(Image, "~/debug_image", reliable)
+        self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+
+        image_type = CompressedImage if self.settings["compressed_input"] else Image
+        qos = self._input_qos()
+        self.create_subscription(image_type, "image", self._on_image, qos)
+        self.create_subscription(CameraInfo, "camera_info", self._on_camera_info, qos)
+        if self.settings["use_instances"]:
+            self.create_subscription(Image, "instances", self._on_instances, qos)
+        self.create_timer(self.settings["diagnostics_period_s"], self._publish_diagnostics)
+        self._worker = threading.Thread(target=self._work, name="segmenter-worker", daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f"segmenter ready: method={self.settings['method']} image_qos={self.settings['image_qos']} "
+            f"input={image_type.__name__} use_instances={self.settings['use_instances']}")
+
+    def _check_choices(self) -> None:
+        for name in ("image_qos", "method", "flow_preset"):
+            allowed = PARAMETERS[name][1].additional_constraints.removeprefix("one of: ").split(", ")
+            if self.settings[name] not in allowed:
+                raise ValueError(f"parameter {name}={self.settings[name]!r} is not one of {allowed}")
+
+    def _pipeline_config(self) -> PipelineConfig:
+        s = self.settings
+        config = PipelineConfig(
+            method=s["method"], working_width=s["working_width"], flow_preset=s["flow_preset"],
+            mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
+            instance_min_fraction=s["instance_min_fraction"],
+            baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
+        config.validate()
+        return config
+
+    def _input_qos(self) -> QoSProfile:
+        depth = self.settings["qos_depth"]
+        if self.settings["image_qos"] == "sensor_data":
+            return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
+                              durability=qos_profile_sensor_data.durability, history=HistoryPolicy.KEEP_LAST)
+        reliability = (ReliabilityPolicy.RELIABLE if self.settings["image_qos"] == "reliable"
+                       else ReliabilityPolicy.BEST_EFFORT)
+        return QoSProfile(depth=depth, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
+
+    def _warn(self, text: str) -> None:
+        self.get_logger().warning(text, throttle_duration_sec=self.settings["warn_throttle_s"])
+
+    # Callbacks: the executor thread only enqueues.
+    def _on_image(self, msg: Any) -> None:
+        now = time.monotonic()
+        with self._wake:
+            self.counters.frames_in += 1
+            self._arrivals.append(now)
+            if len(self._queue) >= self.settings["queue_size"]:
+                self._queue.popleft()
+                self.counters.dropped += 1
+                self._warn("worker is behind: dropped the oldest queued frame")
+            self._queue.append((msg, now))
+            self._wake.notify()
+
+    def _on_camera_info(self, msg: CameraInfo) -> None:
+        # Kept for calibrated methods; without it every method runs uncalibrated (fundamental matrices).
+        k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+        self.camera_matrix = k if k[0, 0] > 0 and k[1, 1] > 0 else None
+
+    def _on_instances(self, msg: Image) -> None:
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        with self._wake:
+            self._instances[key] = msg
+            while len(self._instances) > 50:
+                self._instances.popitem(last=False)
+            self._wake.notify()
+
+    # Worker thread.
+    def _work(self) -> None:
+        while True:
+            with self._wake:
+                self._wake.wait_for(lambda: self._queue or not self._running)
+                if not self._running:
+                    return
+                msg, arrived = self._queue.popleft()
+            try:
+                self._handle(msg, arrived)
+            except Exception as error:  # the node must outlive any single bad frame
+                self.counters.failures += 1
+                self.get_logger().error(f"frame at {_stamp_text(msg)} failed: {error!r}",
+                                        throttle_duration_sec=self.settings["warn_throttle_s"])
+
+    def _take_instances(self, msg: Any) -> np.ndarray | None:
+        if not self.settings["use_instances"]:
+            return None
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
+        with self._wake:
+            self._wake.wait_for(lambda: key in self._instances or not self._running,
+                                timeout=self.settings["instances_timeout_s"])
+            found = self._instances.pop(key, None)
+        if found is None:
+            self.counters.no_instances += 1
+            self._warn(f"no instance image with stamp {_stamp_text(msg)}: segmenting without it")
+            return None
+        return decode_instances(found)
+
+    def _handle(self, msg: Any, arrived: float) -> None:
+        try:
+            frame = decode_frame(msg)
+            instances = self._take_instances(msg)
+        except ValueError as error:
+            self.counters.bad_input += 1
+            self._warn(f"skipped frame {_stamp_text(msg)}: {error}")
+            return
+        if instances is not None and instances.shape != frame.shape[:2]:
+            self.counters.bad_input += 1
+            self._warn(f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
+            instances = None
+        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        result = self.pipeline.process(frame, stamp_ns, instances)
+        if result.status.startswith("reset"):
+            self.counters.resets += 1
+            self._warn(f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
+        self._publish(msg.header, frame, result)
+        done = time.monotonic()
+        self._latencies.append(done - arrived)
+        self._departures.append(done)
+        self.counters.frames_out += 1
+
+    def _publish(self, header: Any, frame: np.ndarray, result: FrameResult) -> None:
+        masks = result.masks
+        self.pub_dynamic.publish(image_from_array(Image, masks.dynamic, "mono8", header))
+        self.pub_static.publish(image_from_array(Image, masks.static, "mono8", header))
+        self.pub_labels.publish(image_from_array(Image, masks.instance_labels, "32SC1", header))
+        if self.pub_debug.get_subscription_count() > 0:
+            rgb = frame if frame.ndim == 3 else np.repeat(frame[..., None], 3, axis=2)
+            self.pub_debug.publish(image_from_array(Image, debug_overlay(rgb, masks), "rgb8", header))
+
+    def _publish_diagnostics(self) -> None:
+        c = self.counters
+        latencies = np.array(self._latencies) * 1e3 if self._latencies else np.zeros(1)
+        problems = c.dropped + c.bad_input + c.failures
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+            name=f"{self.get_name()}: motion segmentation",
+            message="dropped, skipped or failed frames" if problems else "ok",
+            hardware_id=self.get_fully_qualified_name())
+        values = {
+            "frames_in": c.frames_in, "frames_out": c.frames_out, "dropped": c.dropped,
+            "bad_input": c.bad_input, "resets": c.resets, "failures": c.failures,
+            "frames_without_instances": c.no_instances,
+            "input_rate_hz": f"{_rate(self._arrivals):.2f}", "output_rate_hz": f"{_rate(self._departures):.2f}",
+            "latency_ms_p50": f"{np.percentile(latencies, 50):.1f}",
+            "latency_ms_p95": f"{np.percentile(latencies, 95):.1f}",
+            "queued": len(self._queue),
+            "calibrated": self.camera_matrix is not None,
+        }
+        status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self.pub_diagnostics.publish(array)
+
+    def stop(self) -> None:
+        """Stop the worker thread after the frame it is on."""
+        with self._wake:
+            self._running = False
+            self._wake.notify_all()
+        self._worker.join(timeout=5.0)
+
+
+def _rate(times: collections.deque[float]) -> float:
+    if len(times) < 2 or times[-1] <= times[0]:
+        return 0.0
+    return (len(times) - 1) / (times[-1] - times[0])
+
+
+def _stamp_text(msg: Any) -> str:
+    return f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the segmenter until SIGINT or SIGTERM; exit code 2 for invalid parameters."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = SegmenterNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, ParameterException) as error:
+        print(f"segmenter: invalid parameters: {error}", file=sys.stderr)
+        return 2
+    finally:
+        if node is not None:
+            node.stop()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

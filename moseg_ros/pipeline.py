@@ -1,0 +1,159 @@
+"""Frames in -> masks out: the one path that the node and the command-line tools both call.
+
+``Pipeline.process`` takes one decoded frame (and optionally an upstream instance map with the same stamp)
+and always returns masks for that frame. The first frame of a stream, or the first after a reset, has no
+motion evidence yet and gets an empty dynamic mask with status ``warmup``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from moseg_ros.core.baseline import BaselineConfig, dynamic_instances, epipolar_residual
+from moseg_ros.frontend.flow import DIS_PRESETS, DenseFlow
+from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.render import Masks, render_masks
+
+METHODS = ("epipolar_baseline",)
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    """Every setting of the pipeline; the node's parameters map one to one onto these fields."""
+
+    method: str = "epipolar_baseline"
+    working_width: int = 640
+    flow_preset: str = "fast"
+    mask_margin_px: int = 6
+    min_region_area: int = 60
+    instance_min_fraction: float = 0.3
+    baseline: BaselineConfig = field(default_factory=BaselineConfig)
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first setting out of range."""
+        if self.method not in METHODS:
+            raise ValueError(f"method {self.method!r} is not one of {METHODS}")
+        if self.flow_preset not in DIS_PRESETS:
+            raise ValueError(f"flow_preset {self.flow_preset!r} is not one of {sorted(DIS_PRESETS)}")
+        if not 64 <= self.working_width <= 4096:
+            raise ValueError(f"working_width {self.working_width} must be within 64..4096 pixels")
+        if self.mask_margin_px < 0:
+            raise ValueError(f"mask_margin_px {self.mask_margin_px} must be >= 0")
+        if self.min_region_area < 1:
+            raise ValueError(f"min_region_area {self.min_region_area} must be >= 1")
+        if not 0.0 < self.instance_min_fraction <= 1.0:
+            raise ValueError(f"instance_min_fraction {self.instance_min_fraction} must be in (0, 1]")
+
+
+@dataclass
+class FrameResult:
+    """What the pipeline says about one input frame.
+
+    Attributes:
+        stamp_ns: the input's stamp, unchanged.
+        masks: masks at the input size.
+        status: ``ok``, ``warmup`` (no previous frame yet), ``no_geometry`` (camera too still or RANSAC
+            failed: nothing flagged), or ``reset: <reason>`` (window cleared before this frame).
+        dynamic_ids: (D,) ids of the instances flagged as moving.
+        seconds: processing time of this frame.
+    """
+
+    stamp_ns: int
+    masks: Masks
+    status: str
+    dynamic_ids: np.ndarray
+    seconds: float
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8 grey from a grey (H, W) or colour (H, W, 3) rgb uint8 frame."""
+    if image.ndim == 2:
+        return image
+    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
+
+
+class Pipeline:
+    """Streaming motion segmentation over a sliding window of frames."""
+
+    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+        config.validate()
+        self.config = config
+        self._flow = DenseFlow(config.flow_preset)
+        self._tracker = InstanceTracker()
+        self._previous: np.ndarray | None = None
+        self._last_stamp: int | None = None
+        self._input_size: tuple[int, int] | None = None
+        self.resets = 0
+
+    def reset(self) -> None:
+        """Clear the window (the next frame starts a new stream)."""
+        self._previous = None
+        self._last_stamp = None
+        self._input_size = None
+        self._tracker.reset()
+
+    def _working_size(self, height: int, width: int) -> tuple[int, int]:
+        scale = min(1.0, self.config.working_width / width)
+        return max(8, round(height * scale)), max(8, round(width * scale))
+
+    def _reset_reason(self, size: tuple[int, int], stamp_ns: int) -> str | None:
+        if self._input_size is not None and size != self._input_size:
+            return f"image size changed from {self._input_size} to {size}"
+        if self._last_stamp is not None and stamp_ns <= self._last_stamp:
+            return "time went backwards" if stamp_ns < self._last_stamp else "repeated stamp"
+        return None
+
+    def process(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None = None) -> FrameResult:
+        """Segment one frame.
+
+        Args:
+            image: (H, W) grey or (H, W, 3) rgb uint8 frame.
+            stamp_ns: the frame's stamp; a stamp not after the previous one resets the window.
+            instances: optional (H, W) int upstream instance ids for this frame (0 = none).
+
+        Returns:
+            The frame's masks and status.
+        """
+        start = time.perf_counter()
+        if image.dtype != np.uint8 or image.ndim not in (2, 3) or image.size == 0:
+            raise ValueError(f"expected a non-empty uint8 grey or rgb frame, got {image.dtype} {image.shape}")
+        size = image.shape[:2]
+        if instances is not None and instances.shape != size:
+            raise ValueError(f"instance map {instances.shape} does not match the image {size}")
+        status = "ok"
+        reason = self._reset_reason(size, stamp_ns)
+        if reason is not None:
+            self.reset()
+            self.resets += 1
+            status = f"reset: {reason}"
+        h, w = self._working_size(*size)
+        gray = cv2.resize(to_gray(image), (w, h), interpolation=cv2.INTER_AREA)
+        previous, self._previous = self._previous, gray
+        self._last_stamp, self._input_size = stamp_ns, size
+
+        labels = np.zeros((h, w), dtype=np.int32)
+        dynamic_ids = np.zeros(0, dtype=np.int32)
+        if previous is None:
+            status = "warmup" if status == "ok" else status
+        else:
+            labels, dynamic_ids, found = self._decide(previous, gray, instances, (h, w))
+            if not found and status == "ok":
+                status = "no_geometry"
+        masks = render_masks(labels, dynamic_ids, size, self.config.mask_margin_px)
+        return FrameResult(stamp_ns, masks, status, dynamic_ids, time.perf_counter() - start)
+
+    def _decide(self, previous: np.ndarray, gray: np.ndarray, instances: np.ndarray | None,
+                working: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, bool]:
+        evidence = epipolar_residual(self._flow(gray, previous), self._flow(previous, gray), self.config.baseline)
+        moving = evidence.residual > evidence.threshold
+        if instances is not None:
+            labels = cv2.resize(instances.astype(np.int32), working[::-1], interpolation=cv2.INTER_NEAREST)
+            ids = dynamic_instances(labels, moving, evidence.valid, self.config.instance_min_fraction)
+        else:
+            labels = self._tracker.update(propose_regions(moving, self.config.min_region_area))
+            ids = np.unique(labels[labels > 0]).astype(np.int32)
+        return labels, ids, evidence.fundamental is not None

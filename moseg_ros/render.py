@@ -1,0 +1,72 @@
+"""Decisions -> masks: the three published masks and the debug overlay."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass
+class Masks:
+    """The masks published for one frame, all (H, W) at the input image's size.
+
+    Attributes:
+        dynamic: uint8, 255 = independently moving (ignore), 0 = usable (OpenVINS / Isaac ROS polarity).
+        static: uint8, 255 = usable, 0 = moving (OpenCV / stella_vslam / VINS feature-mask polarity).
+        instance_labels: int32, 0 = static or background, j > 0 = id of a moving instance.
+    """
+
+    dynamic: np.ndarray
+    static: np.ndarray
+    instance_labels: np.ndarray
+
+
+def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int, int],
+                 margin_px: int = 0) -> Masks:
+    """Paint the dynamic instances, grow them by a safety margin and scale to the image size.
+
+    Args:
+        instances: (h, w) int32 instance ids at the working resolution.
+        dynamic_ids: (D,) ids of the instances judged to move by themselves.
+        size: (H, W) of the input image.
+        margin_px: dilation in output pixels, so features on an object's rim are dropped too.
+
+    Returns:
+        The masks at (H, W).
+    """
+    height, width = size
+    keep = np.zeros(int(instances.max(initial=0)) + 1, dtype=np.int32)
+    keep[dynamic_ids[dynamic_ids < keep.size]] = dynamic_ids[dynamic_ids < keep.size]
+    labels = keep[instances]
+    if labels.shape != (height, width):
+        labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
+    if margin_px > 0 and labels.any():
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+        grown = cv2.dilate(labels.astype(np.float32), kernel).astype(np.int32)
+        labels = np.where(labels > 0, labels, grown)
+    dynamic = np.where(labels > 0, 255, 0).astype(np.uint8)
+    return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
+
+
+def debug_overlay(rgb: np.ndarray, masks: Masks, alpha: float = 0.5) -> np.ndarray:
+    """Tint moving instances on the image, one colour per id, with their outlines.
+
+    Args:
+        rgb: (H, W, 3) uint8 image.
+        masks: the frame's masks.
+
+    Returns:
+        (H, W, 3) uint8 overlay.
+    """
+    labels = masks.instance_labels
+    golden = (labels.astype(np.int64) * 47) % 180
+    hsv = np.stack([golden, np.full_like(golden, 255), np.full_like(golden, 255)], axis=-1).astype(np.uint8)
+    colours = cv2.cvtColor(hsv, cv2.COLOR_HSV2RGB)
+    moving = labels > 0
+    out = rgb.copy()
+    out[moving] = ((1 - alpha) * rgb[moving] + alpha * colours[moving]).astype(np.uint8)
+    edges = cv2.morphologyEx(masks.dynamic, cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) > 0
+    out[edges] = (255, 255, 0)
+    return out

@@ -1,0 +1,1 @@
+"""Deterministic synthetic street scenes with exact ground truth."""

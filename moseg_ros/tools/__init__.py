@@ -1,0 +1,1 @@
+"""Command-line tools over bags: process, replay, demo, bench."""
