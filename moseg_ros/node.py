@@ -108,6 +108,7 @@ class SegmenterNode(Node):
         self._wake = threading.Condition()
         self._running = True
         self.camera_matrix: np.ndarray | None = None
+        self._last_warning: dict[str, float] = {}
 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
         self.pub_dynamic = self.create_publisher(Image, "~/dynamic_mask", reliable)
@@ -154,8 +155,12 @@ class SegmenterNode(Node):
                        else ReliabilityPolicy.BEST_EFFORT)
         return QoSProfile(depth=depth, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
 
-    def _warn(self, text: str) -> None:
-        self.get_logger().warning(text, throttle_duration_sec=self.settings["warn_throttle_s"])
+    def _warn(self, kind: str, text: str) -> None:
+        # Throttled per kind: rclpy's own throttle is per call site, which would let one kind hide another.
+        now = time.monotonic()
+        if now - self._last_warning.get(kind, -np.inf) >= self.settings["warn_throttle_s"]:
+            self._last_warning[kind] = now
+            self.get_logger().warning(text)
 
     # Callbacks: the executor thread only enqueues.
     def _on_image(self, msg: Any) -> None:
@@ -166,7 +171,7 @@ class SegmenterNode(Node):
             if len(self._queue) >= self.settings["queue_size"]:
                 self._queue.popleft()
                 self.counters.dropped += 1
-                self._warn("worker is behind: dropped the oldest queued frame")
+                self._warn("dropped", "worker is behind: dropped the oldest queued frame")
             self._queue.append((msg, now))
             self._wake.notify()
 
@@ -208,7 +213,7 @@ class SegmenterNode(Node):
             found = self._instances.pop(key, None)
         if found is None:
             self.counters.no_instances += 1
-            self._warn(f"no instance image with stamp {_stamp_text(msg)}: segmenting without it")
+            self._warn("no_instances", f"no instance image with stamp {_stamp_text(msg)}: segmenting without it")
             return None
         return decode_instances(found)
 
@@ -218,17 +223,17 @@ class SegmenterNode(Node):
             instances = self._take_instances(msg)
         except ValueError as error:
             self.counters.bad_input += 1
-            self._warn(f"skipped frame {_stamp_text(msg)}: {error}")
+            self._warn("bad_input", f"skipped frame {_stamp_text(msg)}: {error}")
             return
         if instances is not None and instances.shape != frame.shape[:2]:
             self.counters.bad_input += 1
-            self._warn(f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
+            self._warn("bad_instances", f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         result = self.pipeline.process(frame, stamp_ns, instances)
         if result.status.startswith("reset"):
             self.counters.resets += 1
-            self._warn(f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
+            self._warn("reset", f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
         self._publish(msg.header, frame, result)
         done = time.monotonic()
         self._latencies.append(done - arrived)

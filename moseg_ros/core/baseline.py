@@ -5,6 +5,11 @@ to dense-flow correspondences recovers it; a pixel whose correspondence lies far
 (Sampson distance, Hartley & Zisserman eq. 11.9) moves by itself. This is the baseline the paper's fused
 method improves on: it is blind to motion inside the epipolar plane (a car driving ahead of the camera in its
 own direction, or straight towards it), which a flow model catches.
+
+When one homography explains the dominant motion about as well as F does (a camera that only rotates, or a
+scene that is mostly one plane), F is not determined by the data and a wrong member of its family can
+swallow a mover; the residual is then the homography's transfer error instead (the model-selection idea of
+Torr's GRIC, as in ORB-SLAM's initialisation, reduced to an inlier-count test).
 """
 
 from __future__ import annotations
@@ -28,6 +33,7 @@ class BaselineConfig:
     residual_noise_factor: float = 4.0
     min_parallax_px: float = 0.3
     min_inliers: int = 30
+    homography_preference: float = 0.9
 
 
 @dataclass
@@ -39,6 +45,7 @@ class EpipolarResidual:
         valid: (H, W) bool, pixels whose flow passed the forward-backward check.
         threshold: residual above which a pixel counts as independently moving this frame.
         fundamental: (3, 3) F with x_prev^T F x_cur = 0, or None when the geometry was not estimable.
+        homography: (3, 3) H with x_prev ~ H x_cur when the dominant motion is a homography, else None.
         inlier_ratio: RANSAC inlier fraction of the sampled correspondences.
     """
 
@@ -47,6 +54,7 @@ class EpipolarResidual:
     threshold: float
     fundamental: np.ndarray | None
     inlier_ratio: float
+    homography: np.ndarray | None = None
 
 
 def sampson_distance_map(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
@@ -105,12 +113,38 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     if inliers.sum() < config.min_inliers:
         return empty
 
-    distance = np.sqrt(sampson_distance_map(fundamental, grid, grid + to_previous)).astype(np.float32)
-    inlier_distance = np.sqrt(sampson_distance_map(fundamental, points[inliers], matches[inliers]))
+    homography, h_inliers = cv2.findHomography(points, matches, cv2.USAC_MAGSAC, config.ransac_threshold_px)
+    planar = (homography is not None and h_inliers is not None
+              and h_inliers.sum() >= config.homography_preference * inliers.sum())
+    if planar:
+        h_inliers = h_inliers.ravel().astype(bool)
+        distance = transfer_distance_map(homography, grid, grid + to_previous)
+        inlier_distance = transfer_distance_map(homography, points[h_inliers], matches[h_inliers])
+    else:
+        homography = None
+        distance = np.sqrt(sampson_distance_map(fundamental, grid, grid + to_previous))
+        inlier_distance = np.sqrt(sampson_distance_map(fundamental, points[inliers], matches[inliers]))
     noise = 1.4826 * np.median(inlier_distance)
     threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
     residual[valid] = distance[valid]
-    return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()))
+    return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()), homography)
+
+
+def transfer_distance_map(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """One-sided transfer error |x' - H x| in pixels (Hartley & Zisserman eq. 4.6).
+
+    Args:
+        homography: (3, 3) H with x' ~ H x.
+        points: (..., 2) positions x.
+        matches: (..., 2) corresponding positions x'.
+
+    Returns:
+        (...) distance in pixels.
+    """
+    ones = np.ones(points.shape[:-1] + (1,), dtype=np.float64)
+    mapped = np.concatenate([points, ones], axis=-1) @ homography.T
+    projected = mapped[..., :2] / np.where(np.abs(mapped[..., 2:]) < 1e-12, 1e-12, mapped[..., 2:])
+    return np.linalg.norm(matches - projected, axis=-1)
 
 
 def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,

@@ -1,0 +1,63 @@
+"""Shared fixtures: real-data location, private ROS domains, small textured scenes."""
+
+from __future__ import annotations
+
+import itertools
+import os
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+_domains = itertools.count()
+
+
+def shared_data(*parts: str) -> Path:
+    """A path under ../shared/data, skipping the calling test with the reason when it is absent."""
+    path = SHARED_DATA.joinpath(*parts)
+    if not path.exists():
+        pytest.skip(f"real data absent: {path} (../shared/data is only beside the repository in development/CI)")
+    return path
+
+
+@pytest.fixture
+def ros_domain() -> int:
+    """A ROS domain id no other test of this run (or a parallel run with another pid) is using."""
+    return 1 + (os.getpid() * 13 + next(_domains)) % 100
+
+
+def textured_frames(n: int, height: int = 188, width: int = 621, seed: int = 0,
+                    mover_speed_px: int = 3) -> list[np.ndarray]:
+    """Frames of a camera panning over a random texture, with a block sliding down across it.
+
+    The background shifts 2 px left per frame (one rigid motion, horizontal epipolar lines); the block
+    moves ``mover_speed_px`` px down per frame, off those lines, so it is an independent motion.
+    """
+    rng = np.random.default_rng(seed)
+    texture = cv2.GaussianBlur((rng.random((height, width + 4 * n)) * 255).astype(np.uint8), (5, 5), 0)
+    block = cv2.GaussianBlur((rng.random((height // 3, width // 8)) * 255).astype(np.uint8), (5, 5), 0)
+    frames = []
+    for i in range(n):
+        frame = texture[:, 2 * i:2 * i + width].copy()
+        x, y = width // 4, height // 6 + mover_speed_px * i
+        frame[y:y + block.shape[0], x:x + block.shape[1]] = block[:height - y]
+        frames.append(np.repeat(frame[..., None], 3, axis=2))
+    return frames
+
+
+@pytest.fixture
+def textured_bag(tmp_path: Path) -> Path:
+    """A 20-frame rgb8 bag at 10 Hz on /camera/image_raw with camera_info."""
+    from moseg_ros.io.bags import BagWriter
+
+    path = tmp_path / "textured"
+    k = np.array([[500.0, 0, 310], [0, 500, 94], [0, 0, 1]])
+    with BagWriter(path) as writer:
+        for i, frame in enumerate(textured_frames(20)):
+            stamp = 1_700_000_000_000_000_000 + i * 100_000_000
+            writer.write_image("/camera/image_raw", stamp, "camera_optical", frame, "rgb8", log_time_ns=stamp)
+            writer.write_camera_info("/camera/camera_info", stamp, "camera_optical", k, 621, 188,
+                                     log_time_ns=stamp)
+    return path

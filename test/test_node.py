@@ -1,0 +1,161 @@
+"""The segmenter node in its own process, over DDS on loopback, on a private ROS domain per test."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import textured_frames
+from moseg_ros.io.bags import iter_messages, stamp_to_ns
+from moseg_ros.tools.dds import loopback_env
+from moseg_ros.tools.demo import start_segmenter, stop_segmenter
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
+import rclpy.executors  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from sensor_msgs.msg import Image  # noqa: E402
+
+from moseg_ros.io.image import image_from_array  # noqa: E402
+
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+
+
+@pytest.fixture
+def segmenter(ros_domain, tmp_path):
+    """A running segmenter process on the test's domain; yields (process, log path), stops it after."""
+    log = tmp_path / "segmenter.log"
+    process = start_segmenter(ros_domain, log)
+    yield process, log
+    stop_segmenter(process)
+
+
+def test_replay_gets_one_mask_per_frame_with_identical_headers(segmenter, ros_domain, textured_bag, tmp_path):
+    out = tmp_path / "masks"
+    result = subprocess.run(
+        [sys.executable, "-m", "moseg_ros.cli", "replay", str(textured_bag), "-o", str(out),
+         "--domain", str(ros_domain), "--discovery-timeout", "30"],
+        capture_output=True, text=True, timeout=120, env=loopback_env(ros_domain))
+    assert result.returncode == 0, result.stdout + result.stderr
+
+    inputs = {stamp_to_ns(m.header.stamp): m.header.frame_id
+              for _, _, m in iter_messages(textured_bag, ["/camera/image_raw"])}
+    for topic, encoding in (("/segmenter/dynamic_mask", "mono8"), ("/segmenter/static_mask", "mono8"),
+                            ("/segmenter/instance_labels", "32SC1")):
+        outputs = [m for _, _, m in iter_messages(out, [topic])]
+        assert len(outputs) == len(inputs) == 20
+        assert {stamp_to_ns(m.header.stamp): m.header.frame_id for m in outputs} == inputs
+        assert {m.encoding for m in outputs} == {encoding}
+        assert {(m.height, m.width) for m in outputs} == {(188, 621)}
+    # the masks were really computed: the sliding block is flagged in later frames
+    dynamic = [m for _, _, m in iter_messages(out, ["/segmenter/dynamic_mask"])]
+    assert np.frombuffer(bytes(dynamic[-1].data), np.uint8).mean() > 2.0
+    process, _ = segmenter
+    assert process.poll() is None
+
+
+class _Probe:
+    """A publisher of raw Image messages and a listener for masks and diagnostics on one ROS domain."""
+
+    def __init__(self, domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
+        for key, value in loopback_env(domain).items():
+            monkeypatch.setenv(key, value)
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("probe", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.publisher = self.node.create_publisher(Image, "/camera/image_raw", RELIABLE)
+        self.masks: list[Image] = []
+        self.diagnostics: dict[str, str] = {}
+        self.node.create_subscription(Image, "/segmenter/dynamic_mask", self.masks.append, RELIABLE)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        self.diagnostics = {kv.key: kv.value for kv in msg.status[0].values}
+
+    def spin_until(self, condition, timeout: float) -> bool:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+            if condition():
+                return True
+        return False
+
+    def send(self, msg: Image) -> None:
+        self.publisher.publish(msg)
+        self.spin_until(lambda: False, 0.1)  # 10 Hz
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def _image(frame: np.ndarray, stamp_ns: int, encoding: str = "rgb8") -> Image:
+    from std_msgs.msg import Header
+
+    header = Header(frame_id="camera")
+    header.stamp.sec, header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+    return image_from_array(Image, frame, encoding, header)
+
+
+def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, monkeypatch):
+    process, log = segmenter
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.spin_until(lambda: probe.publisher.get_subscription_count() > 0, 30), "node not discovered"
+        frames = textured_frames(8)
+        second = 1_000_000_000
+        good = [_image(f, (10 + i) * second) for i, f in enumerate(frames[:3])]
+        for msg in good:
+            probe.send(msg)
+        unsupported = _image(frames[3], 14 * second)
+        unsupported.encoding = "xyz99"
+        short_step = _image(frames[3], 15 * second)
+        short_step.step = 10
+        empty = _image(frames[3], 16 * second)
+        empty.data = []
+        for msg in (unsupported, short_step, empty):
+            probe.send(msg)
+        probe.send(_image(frames[4][:100, :200], 17 * second))     # size change mid-stream
+        probe.send(_image(frames[5], 5 * second))                   # time goes backwards (a looping bag)
+        probe.send(_image(frames[6], 6 * second))
+        probe.send(_image(frames[7][..., 0].copy(), 7 * second, "mono8"))  # grey works as well
+        assert probe.spin_until(lambda: len(probe.masks) >= 7, 20), f"only {len(probe.masks)} masks came back"
+        assert probe.spin_until(lambda: probe.diagnostics.get("frames_out") == "7", 5), probe.diagnostics
+        assert probe.diagnostics["bad_input"] == "3" and probe.diagnostics["resets"] == "2"
+        assert process.poll() is None, log.read_text()
+        stamps = [stamp_to_ns(m.header.stamp) for m in probe.masks]
+        assert stamps == [10 * second, 11 * second, 12 * second, 17 * second, 5 * second, 6 * second, 7 * second]
+        assert (probe.masks[3].height, probe.masks[3].width) == (100, 200)
+        assert probe.diagnostics["frames_in"] == "10"
+        text = log.read_text()
+        assert "unsupported encoding 'xyz99'" in text and "window reset" in text
+    finally:
+        probe.close()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_clean_exit_on_signal(ros_domain, tmp_path, sig):
+    process = start_segmenter(ros_domain, tmp_path / "log")
+    time.sleep(2.0)
+    assert process.poll() is None, (tmp_path / "log").read_text()
+    process.send_signal(sig)
+    assert process.wait(timeout=10) == 0, (tmp_path / "log").read_text()
+
+
+def test_invalid_parameter_is_refused_with_a_clear_message(ros_domain, tmp_path):
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["flow_preset:=warp"])
+    assert process.wait(timeout=20) == 2
+    assert "flow_preset='warp' is not one of" in log.read_text()
+    process = start_segmenter(ros_domain, log, params=["working_width:=10"])
+    assert process.wait(timeout=20) == 2
+    assert "working_width" in log.read_text()

@@ -1,0 +1,79 @@
+"""The in-process pipeline: one mask per frame, the independent mover found, resets on bad streams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import textured_frames
+from moseg_ros.pipeline import Pipeline, PipelineConfig
+
+STEP = 100_000_000
+
+
+def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
+    truth = np.zeros((height, width), dtype=bool)
+    y = height // 6 + speed * index
+    truth[y:y + height // 3, width // 4:width // 4 + width // 8] = True
+    return truth
+
+
+def test_finds_the_independent_block_and_nothing_else():
+    pipeline = Pipeline(PipelineConfig(mask_margin_px=0))
+    ious, false_positive = [], []
+    for i, frame in enumerate(textured_frames(12)):
+        result = pipeline.process(frame, i * STEP)
+        assert result.masks.dynamic.shape == frame.shape[:2]
+        assert result.status == ("warmup" if i == 0 else "ok")
+        if i >= 2:
+            moving, truth = result.masks.dynamic > 0, block_truth(i)
+            ious.append((moving & truth).sum() / (moving | truth).sum())
+            false_positive.append((moving & ~truth).mean())
+    assert np.mean(ious) > 0.6
+    assert np.mean(false_positive) < 0.02
+
+
+def test_masks_are_consistent_across_polarities():
+    pipeline = Pipeline()
+    frames = textured_frames(4)
+    for i, frame in enumerate(frames):
+        masks = pipeline.process(frame, i * STEP).masks
+    assert masks.dynamic.dtype == np.uint8 and set(np.unique(masks.dynamic)) <= {0, 255}
+    assert np.array_equal(masks.static, 255 - masks.dynamic)
+    assert np.array_equal(masks.instance_labels > 0, masks.dynamic > 0)
+    assert masks.instance_labels.dtype == np.int32
+
+
+def test_time_going_backwards_and_size_change_reset_the_window():
+    pipeline = Pipeline()
+    frames = textured_frames(3)
+    pipeline.process(frames[0], 5 * STEP)
+    assert pipeline.process(frames[1], 6 * STEP).status == "ok"
+    assert pipeline.process(frames[2], 1 * STEP).status == "reset: time went backwards"
+    smaller = frames[0][:100, :300]
+    assert pipeline.process(smaller, 2 * STEP).status.startswith("reset: image size changed")
+    assert pipeline.resets == 2
+
+
+def test_grey_input_and_upstream_instances():
+    pipeline = Pipeline(PipelineConfig(mask_margin_px=0))
+    truth_ids = None
+    for i, frame in enumerate(textured_frames(5)):
+        instances = np.zeros(frame.shape[:2], dtype=np.int32)
+        instances[block_truth(i)] = 7
+        instances[150:, 500:] = 3  # a static region that must stay unflagged
+        result = pipeline.process(frame[..., 0], i * STEP, instances)
+        truth_ids = result.dynamic_ids
+    assert truth_ids.tolist() == [7]
+    assert (result.masks.instance_labels[block_truth(4)] == 7).all()
+
+
+@pytest.mark.parametrize("bad", [np.zeros((0, 10), np.uint8), np.zeros((10, 10), np.float32)])
+def test_bad_frames_raise_a_clear_error(bad):
+    with pytest.raises(ValueError, match="uint8 grey or rgb"):
+        Pipeline().process(bad, 0)
+
+
+def test_invalid_configuration_is_named():
+    with pytest.raises(ValueError, match="flow_preset"):
+        Pipeline(PipelineConfig(flow_preset="warp"))
