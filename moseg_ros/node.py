@@ -68,6 +68,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
                                     integer=True)),
     "min_region_area": (60, _describe("smallest moving region kept (working pixels)", low=1, high=100000,
                                       integer=True)),
+    "min_persistence": (2, _describe("frames a moving region must persist before it is flagged", low=1,
+                                      high=100, integer=True)),
     "instance_min_fraction": (0.3, _describe("share of an instance that must move to flag it", low=0.01,
                                              high=1.0)),
     "residual_threshold_px": (1.5, _describe("epipolar residual above which a pixel moves (working px)",
@@ -141,6 +143,7 @@ class SegmenterNode(Node):
         config = PipelineConfig(
             method=s["method"], working_width=s["working_width"], flow_preset=s["flow_preset"],
             mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
+            min_persistence=s["min_persistence"],
             instance_min_fraction=s["instance_min_fraction"],
             baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
         config.validate()

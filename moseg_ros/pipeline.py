@@ -30,6 +30,7 @@ class PipelineConfig:
     flow_preset: str = "fast"
     mask_margin_px: int = 6
     min_region_area: int = 60
+    min_persistence: int = 2
     instance_min_fraction: float = 0.3
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
 
@@ -45,6 +46,8 @@ class PipelineConfig:
             raise ValueError(f"mask_margin_px {self.mask_margin_px} must be >= 0")
         if self.min_region_area < 1:
             raise ValueError(f"min_region_area {self.min_region_area} must be >= 1")
+        if self.min_persistence < 1:
+            raise ValueError(f"min_persistence {self.min_persistence} must be >= 1")
         if not 0.0 < self.instance_min_fraction <= 1.0:
             raise ValueError(f"instance_min_fraction {self.instance_min_fraction} must be in (0, 1]")
 
@@ -155,5 +158,6 @@ class Pipeline:
             ids = dynamic_instances(labels, moving, evidence.valid, self.config.instance_min_fraction)
         else:
             labels = self._tracker.update(propose_regions(moving, self.config.min_region_area))
-            ids = np.unique(labels[labels > 0]).astype(np.int32)
+            ids = np.array(sorted(i for i, age in self._tracker.ages.items()
+                                  if age >= self.config.min_persistence), dtype=np.int32)
         return labels, ids, evidence.fundamental is not None

@@ -28,6 +28,7 @@ class BaselineConfig:
 
     grid_step: int = 6
     fb_max_px: float = 1.0
+    fb_max_fraction: float = 0.05
     ransac_threshold_px: float = 0.5
     residual_threshold_px: float = 1.5
     residual_noise_factor: float = 4.0
@@ -93,7 +94,9 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     """
     h, w = to_previous.shape[:2]
     grid = pixel_grid(h, w)
-    valid = forward_backward_error(to_previous, to_current) < config.fb_max_px
+    # Large flows (near objects under forward motion) carry proportionally larger round-trip error.
+    tolerance = config.fb_max_px + config.fb_max_fraction * np.linalg.norm(to_previous, axis=-1)
+    valid = forward_backward_error(to_previous, to_current) < tolerance
     residual = np.zeros((h, w), dtype=np.float32)
     empty = EpipolarResidual(residual, valid, np.inf, None, 0.0)
 

@@ -51,17 +51,23 @@ def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cu
 
 
 class InstanceTracker:
-    """Gives regions ids that persist across frames (IoU matching with the previous frame)."""
+    """Gives regions ids that persist across frames (IoU matching with the previous frame).
+
+    ``ages`` counts, per id, the consecutive frames it has been seen, so callers can ignore one-frame
+    flickers (flow failures) and keep only regions that persist.
+    """
 
     def __init__(self, min_iou: float = 0.2) -> None:
         self.min_iou = min_iou
         self._previous: np.ndarray | None = None
         self._next_id = 1
+        self.ages: dict[int, int] = {}
 
     def reset(self) -> None:
         """Forget all tracks (after a size change or a jump back in time)."""
         self._previous = None
         self._next_id = 1
+        self.ages = {}
 
     def update(self, regions: np.ndarray) -> np.ndarray:
         """Relabel ``regions`` ((H, W) int32, 0..R) with persistent ids; returns (H, W) int32."""
@@ -81,4 +87,5 @@ class InstanceTracker:
         self._next_id += fresh.size
         tracked = ids[regions]
         self._previous = tracked
+        self.ages = {int(i): self.ages.get(int(i), 0) + 1 for i in ids[1:]}
         return tracked
