@@ -69,11 +69,12 @@ def sampson_distance_map(fundamental: np.ndarray, points: np.ndarray, matches: n
     Returns:
         (...) squared Sampson distance (x'^T F x)^2 / ((Fx)_1^2 + (Fx)_2^2 + (F^T x')_1^2 + (F^T x')_2^2).
     """
-    ones = np.ones(points.shape[:-1] + (1,), dtype=np.float64)
+    f = fundamental.astype(points.dtype)
+    ones = np.ones(points.shape[:-1] + (1,), dtype=points.dtype)
     x = np.concatenate([points, ones], axis=-1)
     xp = np.concatenate([matches, ones], axis=-1)
-    fx = x @ fundamental.T
-    ftxp = xp @ fundamental
+    fx = x @ f.T
+    ftxp = xp @ f
     numerator = np.einsum("...i,...i->...", xp, fx) ** 2
     denominator = fx[..., 0] ** 2 + fx[..., 1] ** 2 + ftxp[..., 0] ** 2 + ftxp[..., 1] ** 2
     return numerator / np.maximum(denominator, 1e-12)
@@ -144,8 +145,8 @@ def transfer_distance_map(homography: np.ndarray, points: np.ndarray, matches: n
     Returns:
         (...) distance in pixels.
     """
-    ones = np.ones(points.shape[:-1] + (1,), dtype=np.float64)
-    mapped = np.concatenate([points, ones], axis=-1) @ homography.T
+    ones = np.ones(points.shape[:-1] + (1,), dtype=points.dtype)
+    mapped = np.concatenate([points, ones], axis=-1) @ homography.astype(points.dtype).T
     projected = mapped[..., :2] / np.where(np.abs(mapped[..., 2:]) < 1e-12, 1e-12, mapped[..., 2:])
     return np.linalg.norm(matches - projected, axis=-1)
 

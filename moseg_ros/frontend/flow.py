@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -39,10 +41,13 @@ class DenseFlow:
         return self._dis.calc(source, target, None)
 
 
+@lru_cache(maxsize=8)
 def pixel_grid(height: int, width: int, step: int = 1) -> np.ndarray:
-    """Pixel centres of a regular grid: (H/step, W/step, 2) float32 (x, y)."""
+    """Pixel centres of a regular grid: (H/step, W/step, 2) float32 (x, y). Cached and read-only."""
     ys, xs = np.mgrid[0:height:step, 0:width:step].astype(np.float32)
-    return np.stack([xs, ys], axis=-1)
+    grid = np.stack([xs, ys], axis=-1)
+    grid.flags.writeable = False
+    return grid
 
 
 def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
