@@ -1,7 +1,8 @@
 """The `moseg` command: one sub-command per tool, each living in its own module.
 
-Every tool module exposes ``add_arguments(parser)`` and ``run(args) -> int``; its docstring's first line is
-the help text. Grouped commands (``moseg eval kt3dmoseg``) nest one level.
+Every tool module exposes ``add_arguments(parser)`` and ``run(args) -> int``. Only the module of the
+command being run is imported, so one tool's heavy or optional imports never slow down or break another.
+Grouped commands (``moseg eval kt3dmoseg``) nest one level.
 """
 
 from __future__ import annotations
@@ -11,47 +12,52 @@ import importlib
 import sys
 from typing import Sequence
 
-COMMANDS: dict[str, str] = {
-    "synth": "moseg_ros.synth.cli",
-    "kitti2bag": "moseg_ros.io.kitti",
-    "process": "moseg_ros.tools.process",
-    "replay": "moseg_ros.tools.replay",
-    "demo": "moseg_ros.tools.demo",
+# name -> (module, one-line help)
+COMMANDS: dict[str, tuple[str, str]] = {
+    "synth": ("moseg_ros.synth.cli", "render a synthetic street scene with ground truth into a bag"),
+    "kitti2bag": ("moseg_ros.io.kitti", "convert a KITTI raw or odometry sequence into an MCAP bag"),
+    "process": ("moseg_ros.tools.process", "run the pipeline in-process over every frame of a bag"),
+    "replay": ("moseg_ros.tools.replay", "replay a bag to a running segmenter and record its outputs"),
+    "demo": ("moseg_ros.tools.demo", "the demo: synthetic bag -> real node over DDS -> scored masks"),
 }
 
-GROUPS: dict[str, tuple[str, dict[str, str]]] = {
-    "eval": ("Benchmarks on a data folder of a known layout.", {
-        "kt3dmoseg": "moseg_ros.eval.kt3dmoseg",
+GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
+    "eval": ("benchmarks on a data folder of a known layout", {
+        "kt3dmoseg": ("moseg_ros.eval.kt3dmoseg", "KT3DMoSeg trajectory-level motion segmentation benchmark"),
     }),
 }
 
 
-def _add_tool(subparsers: argparse._SubParsersAction, name: str, module_name: str) -> None:
-    module = importlib.import_module(module_name)
-    summary = (module.__doc__ or name).strip().splitlines()[0]
-    parser = subparsers.add_parser(name, help=summary, description=module.__doc__,
-                                   formatter_class=argparse.RawDescriptionHelpFormatter)
-    module.add_arguments(parser)
-    parser.set_defaults(_run=module.run)
+def _add_tool(subparsers: argparse._SubParsersAction, name: str, module_name: str, summary: str,
+              selected: bool) -> None:
+    parser = subparsers.add_parser(name, help=summary, description=summary)
+    if selected:
+        module = importlib.import_module(module_name)
+        parser.description = module.__doc__
+        parser.formatter_class = argparse.RawDescriptionHelpFormatter
+        module.add_arguments(parser)
+        parser.set_defaults(_run=module.run)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the `moseg` argument parser with every registered tool."""
+def build_parser(argv: Sequence[str] = ()) -> argparse.ArgumentParser:
+    """The `moseg` parser; the tool named in ``argv`` (if any) gets its full options."""
+    words = [word for word in argv if not word.startswith("-")]
     parser = argparse.ArgumentParser(prog="moseg", description=__doc__.splitlines()[0])
     subparsers = parser.add_subparsers(dest="command", required=True)
-    for name, module_name in COMMANDS.items():
-        _add_tool(subparsers, name, module_name)
+    for name, (module_name, summary) in COMMANDS.items():
+        _add_tool(subparsers, name, module_name, summary, words[:1] == [name])
     for group, (summary, tools) in GROUPS.items():
         group_parser = subparsers.add_parser(group, help=summary, description=summary)
         group_sub = group_parser.add_subparsers(dest="tool", required=True)
-        for name, module_name in tools.items():
-            _add_tool(group_sub, name, module_name)
+        for name, (module_name, tool_summary) in tools.items():
+            _add_tool(group_sub, name, module_name, tool_summary, words[:2] == [group, name])
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `moseg` console script."""
-    args = build_parser().parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser(argv).parse_args(argv)
     return int(args._run(args) or 0)
 
 

@@ -93,10 +93,12 @@ def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) ->
 
 
 def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[str, int]:
-    """Render the synthetic street scenario into ``path`` (rosbag2 MCAP)."""
-    from moseg_ros.synth.street import render_sequence, write_bag
+    """Render the synthetic street scenario into ``path`` (rosbag2 MCAP), one frame at a time."""
+    from moseg_ros.synth.scenarios import build_scene
+    from moseg_ros.synth.street import render_frames, write_frames
 
-    return write_bag(render_sequence(scenario, seed=seed, n_frames=frames), path)
+    scene = build_scene(scenario, seed=seed, n_frames=frames)
+    return write_frames(render_frames(scene), scene.K, scene.width, scene.height, path)
 
 
 def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int = 0, frames: int = 60,
