@@ -10,9 +10,11 @@ from moseg_ros.cli import COMMANDS, GROUPS, main
 
 
 def _tools():
-    yield from ([name], module) for name, (module, _) in COMMANDS.items()
+    for name, (module, _) in COMMANDS.items():
+        yield [name], module
     for group, (_, tools) in GROUPS.items():
-        yield from ([group, name], module) for name, (module, _) in tools.items()
+        for name, (module, _) in tools.items():
+            yield [group, name], module
 
 
 @pytest.mark.parametrize("words,module", list(_tools()), ids=lambda v: " ".join(v) if isinstance(v, list) else v)
