@@ -26,7 +26,7 @@ from moseg_ros.frontend.flow import forward_backward_error, pixel_grid
 class BaselineConfig:
     """Settings of the epipolar baseline (pixels are at the working resolution)."""
 
-    grid_step: int = 6
+    grid_step: int = 10
     fb_max_px: float = 1.0
     fb_max_fraction: float = 0.05
     ransac_threshold_px: float = 0.5
@@ -96,7 +96,7 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     h, w = to_previous.shape[:2]
     grid = pixel_grid(h, w)
     # Large flows (near objects under forward motion) carry proportionally larger round-trip error.
-    tolerance = config.fb_max_px + config.fb_max_fraction * np.linalg.norm(to_previous, axis=-1)
+    tolerance = config.fb_max_px + config.fb_max_fraction * np.hypot(to_previous[..., 0], to_previous[..., 1])
     valid = forward_backward_error(to_previous, to_current) < tolerance
     residual = np.zeros((h, w), dtype=np.float32)
     empty = EpipolarResidual(residual, valid, np.inf, None, 0.0)
@@ -109,7 +109,7 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         return empty
     if np.median(np.linalg.norm(matches - points, axis=1)) < config.min_parallax_px:
         return empty
-    fundamental, inliers = cv2.findFundamentalMat(points, matches, cv2.USAC_MAGSAC,
+    fundamental, inliers = cv2.findFundamentalMat(points, matches, cv2.USAC_FAST,
                                                   config.ransac_threshold_px, 0.999, 2000)
     if fundamental is None or fundamental.shape != (3, 3) or inliers is None:
         return empty
@@ -117,20 +117,20 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     if inliers.sum() < config.min_inliers:
         return empty
 
-    homography, h_inliers = cv2.findHomography(points, matches, cv2.USAC_MAGSAC, config.ransac_threshold_px)
+    homography, h_inliers = cv2.findHomography(points, matches, cv2.USAC_FAST, config.ransac_threshold_px)
     planar = (homography is not None and h_inliers is not None
               and h_inliers.sum() >= config.homography_preference * inliers.sum())
+    here, there = grid[valid], grid[valid] + to_previous[valid]
     if planar:
         h_inliers = h_inliers.ravel().astype(bool)
-        distance = transfer_distance_map(homography, grid, grid + to_previous)
+        residual[valid] = transfer_distance_map(homography, here, there)
         inlier_distance = transfer_distance_map(homography, points[h_inliers], matches[h_inliers])
     else:
         homography = None
-        distance = np.sqrt(sampson_distance_map(fundamental, grid, grid + to_previous))
+        residual[valid] = np.sqrt(sampson_distance_map(fundamental, here, there))
         inlier_distance = np.sqrt(sampson_distance_map(fundamental, points[inliers], matches[inliers]))
     noise = 1.4826 * np.median(inlier_distance)
     threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
-    residual[valid] = distance[valid]
     return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()), homography)
 
 
@@ -148,7 +148,8 @@ def transfer_distance_map(homography: np.ndarray, points: np.ndarray, matches: n
     ones = np.ones(points.shape[:-1] + (1,), dtype=points.dtype)
     mapped = np.concatenate([points, ones], axis=-1) @ homography.astype(points.dtype).T
     projected = mapped[..., :2] / np.where(np.abs(mapped[..., 2:]) < 1e-12, 1e-12, mapped[..., 2:])
-    return np.linalg.norm(matches - projected, axis=-1)
+    offset = matches - projected
+    return np.hypot(offset[..., 0], offset[..., 1])
 
 
 def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,

@@ -65,4 +65,5 @@ def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndar
     landing = grid + forward
     back_at_landing = cv2.remap(backward, landing[..., 0], landing[..., 1], cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
-    return np.linalg.norm(forward + back_at_landing, axis=-1)
+    round_trip = forward + back_at_landing
+    return np.hypot(round_trip[..., 0], round_trip[..., 1])
