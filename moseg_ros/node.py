@@ -58,7 +58,7 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "compressed_input": (False, _describe("subscribe image as sensor_msgs/CompressedImage")),
     "use_instances": (False, _describe("pair each image with an upstream instance-id image on `instances`")),
     "instances_timeout_s": (0.2, _describe("how long a frame waits for its instance image", low=0.0, high=5.0)),
-    "queue_size": (2, _describe("frames waiting for the worker; the oldest is dropped on overflow",
+    "queue_size": (4, _describe("frames waiting for the worker; the oldest is dropped on overflow",
                                 low=1, high=100, integer=True)),
     "method": ("epipolar_baseline", _describe("motion decision method", choices=METHODS)),
     "working_width": (640, _describe("frames are processed at this width (pixels)", low=64, high=4096,
