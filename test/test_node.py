@@ -63,7 +63,7 @@ def test_replay_gets_one_mask_per_frame_with_identical_headers(segmenter, ros_do
 class _Probe:
     """A publisher of raw Image messages and a listener for masks and diagnostics on one ROS domain."""
 
-    def __init__(self, domain: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    def __init__(self, domain: int, monkeypatch: pytest.MonkeyPatch, image_type: type = Image) -> None:
         for key, value in loopback_env(domain).items():
             monkeypatch.setenv(key, value)
         self.context = rclpy.Context()
@@ -71,10 +71,12 @@ class _Probe:
         self.node = rclpy.create_node("probe", context=self.context)
         self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self.publisher = self.node.create_publisher(Image, "/camera/image_raw", RELIABLE)
+        self.publisher = self.node.create_publisher(image_type, "/camera/image_raw", RELIABLE)
         self.masks: list[Image] = []
+        self.debug: list[Image] = []
         self.diagnostics: dict[str, str] = {}
         self.node.create_subscription(Image, "/segmenter/dynamic_mask", self.masks.append, RELIABLE)
+        self.node.create_subscription(Image, "/segmenter/debug_image", self.debug.append, RELIABLE)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10)
 
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
@@ -135,6 +137,9 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
         stamps = [stamp_to_ns(m.header.stamp) for m in probe.masks]
         assert stamps == [10 * second, 11 * second, 12 * second, 17 * second, 5 * second, 6 * second, 7 * second]
         assert (probe.masks[3].height, probe.masks[3].width) == (100, 200)
+        # someone subscribes to the overlay, so it is computed, in rgb8, with the input's header
+        assert [stamp_to_ns(m.header.stamp) for m in probe.debug] == stamps
+        assert {m.encoding for m in probe.debug} == {"rgb8"}
         assert probe.diagnostics["frames_in"] == "10"
         text = log.read_text()
         assert "unsupported encoding 'xyz99'" in text and "window reset" in text
@@ -159,3 +164,32 @@ def test_invalid_parameter_is_refused_with_a_clear_message(ros_domain, tmp_path)
     process = start_segmenter(ros_domain, log, params=["working_width:=10"])
     assert process.wait(timeout=20) == 2
     assert "working_width" in log.read_text()
+
+
+def test_compressed_input(ros_domain, tmp_path, monkeypatch):
+    import cv2
+    from sensor_msgs.msg import CompressedImage
+
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["compressed_input:=true"])
+    probe = _Probe(ros_domain, monkeypatch, CompressedImage)
+    try:
+        assert probe.spin_until(lambda: probe.publisher.get_subscription_count() > 0, 30), log.read_text()
+        for i, frame in enumerate(textured_frames(4)):
+            msg = CompressedImage(format="jpeg")
+            msg.header.frame_id = "camera"
+            msg.header.stamp.sec = 20 + i
+            msg.data = cv2.imencode(".jpg", frame)[1].tobytes()
+            probe.send(msg)
+        bad = CompressedImage(format="jpeg")
+        bad.header.stamp.sec = 30
+        bad.data = b"not a jpeg"
+        probe.send(bad)
+        assert probe.spin_until(lambda: len(probe.masks) >= 4, 20), log.read_text()
+        assert [m.header.stamp.sec for m in probe.masks] == [20, 21, 22, 23]
+        assert {(m.height, m.width) for m in probe.masks} == {(188, 621)}
+        assert probe.spin_until(lambda: probe.diagnostics.get("bad_input") == "1", 5), probe.diagnostics
+        assert process.poll() is None
+    finally:
+        probe.close()
+        stop_segmenter(process)
