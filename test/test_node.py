@@ -90,9 +90,14 @@ class _Probe:
                 return True
         return False
 
-    def send(self, msg: Image) -> None:
+    def send_and_wait(self, msg: Image, expect_mask: bool, timeout: float = 10.0) -> None:
+        """Publish and wait for its mask (or a moment for a frame that must be skipped): order-exact under load."""
+        before = len(self.masks)
         self.publisher.publish(msg)
-        self.spin_until(lambda: False, 0.1)  # 10 Hz
+        if expect_mask:
+            assert self.spin_until(lambda: len(self.masks) > before, timeout), f"no mask for {msg.header.stamp}"
+        else:
+            self.spin_until(lambda: False, 0.3)
 
     def close(self) -> None:
         self.executor.shutdown()
@@ -117,7 +122,7 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
         second = 1_000_000_000
         good = [_image(f, (10 + i) * second) for i, f in enumerate(frames[:3])]
         for msg in good:
-            probe.send(msg)
+            probe.send_and_wait(msg, expect_mask=True)
         unsupported = _image(frames[3], 14 * second)
         unsupported.encoding = "xyz99"
         short_step = _image(frames[3], 15 * second)
@@ -125,12 +130,13 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
         empty = _image(frames[3], 16 * second)
         empty.data = []
         for msg in (unsupported, short_step, empty):
-            probe.send(msg)
-        probe.send(_image(frames[4][:100, :200], 17 * second))     # size change mid-stream
-        probe.send(_image(frames[5], 5 * second))                   # time goes backwards (a looping bag)
-        probe.send(_image(frames[6], 6 * second))
-        probe.send(_image(frames[7][..., 0].copy(), 7 * second, "mono8"))  # grey works as well
-        assert probe.spin_until(lambda: len(probe.masks) >= 7, 20), f"only {len(probe.masks)} masks came back"
+            probe.send_and_wait(msg, expect_mask=False)
+        for msg in (_image(frames[4][:100, :200], 17 * second),   # size change mid-stream
+                    _image(frames[5], 5 * second),                 # time goes backwards (a looping bag)
+                    _image(frames[6], 6 * second),
+                    _image(frames[7][..., 0].copy(), 7 * second, "mono8")):  # grey works as well
+            probe.send_and_wait(msg, expect_mask=True)
+        assert len(probe.masks) == 7
         assert probe.spin_until(lambda: probe.diagnostics.get("frames_out") == "7", 5), probe.diagnostics
         assert probe.diagnostics["bad_input"] == "3" and probe.diagnostics["resets"] == "2"
         assert process.poll() is None, log.read_text()
@@ -180,11 +186,11 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
             msg.header.frame_id = "camera"
             msg.header.stamp.sec = 20 + i
             msg.data = cv2.imencode(".jpg", frame)[1].tobytes()
-            probe.send(msg)
+            probe.send_and_wait(msg, expect_mask=True)
         bad = CompressedImage(format="jpeg")
         bad.header.stamp.sec = 30
         bad.data = b"not a jpeg"
-        probe.send(bad)
+        probe.send_and_wait(bad, expect_mask=False)
         assert probe.spin_until(lambda: len(probe.masks) >= 4, 20), log.read_text()
         assert [m.header.stamp.sec for m in probe.masks] == [20, 21, 22, 23]
         assert {(m.height, m.width) for m in probe.masks} == {(188, 621)}

@@ -102,7 +102,7 @@ def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[
 
 
 def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int = 0, frames: int = 60,
-             domain_id: int = 42, regenerate: bool = False) -> dict[str, Any]:
+             domain_id: int = 42, regenerate: bool = False, rate: float = 1.0) -> dict[str, Any]:
     """Render (if needed), replay through the node, score and picture; returns the summary written."""
     out_dir.mkdir(parents=True, exist_ok=True)
     if regenerate or not bag.exists():
@@ -113,12 +113,12 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
     shutil.rmtree(masks_bag, ignore_errors=True)
     node = start_segmenter(domain_id, out_dir / "segmenter.log")
     try:
-        report = replay(bag, masks_bag, domain_id=domain_id)
+        report = replay(bag, masks_bag, domain_id=domain_id, rate=rate)
     finally:
         exit_code = stop_segmenter(node)
     score = score_bags(bag, masks_bag, MASK_TOPIC)
     summary = {**report.summary(), **score.summary(), "node_exit_code": exit_code, "bag": str(bag),
-               "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed}
+               "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate}
     summary.update(write_pictures(bag, masks_bag, out_dir))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
@@ -151,12 +151,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--domain", type=int, default=int(os.environ.get("MOSEG_DEMO_DOMAIN", 42)),
                         help="ROS domain id of the demo (default 42, or $MOSEG_DEMO_DOMAIN)")
     parser.add_argument("--regenerate", action="store_true", help="render the bag even if it exists")
+    parser.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0 = 10 Hz)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; exit 1 unless every frame got its mask and the node exited cleanly."""
     summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
-                       domain_id=args.domain, regenerate=args.regenerate)
+                       domain_id=args.domain, regenerate=args.regenerate, rate=args.rate)
     print_table(summary)
     print(f"summary: {args.out / 'summary.json'}")
     ok = summary["frames_in"] == summary["masks_out"] and summary["node_exit_code"] == 0
