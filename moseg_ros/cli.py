@@ -25,6 +25,10 @@ GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
     "eval": ("benchmarks on a data folder of a known layout", {
         "kt3dmoseg": ("moseg_ros.eval.kt3dmoseg", "KT3DMoSeg trajectory-level motion segmentation benchmark"),
     }),
+    "bench": ("speed benchmarks that print numbers", {
+        "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),
+        "synth": ("moseg_ros.bench.synth", "frames per second of the synthetic street renderer"),
+    }),
 }
 
 

@@ -1,0 +1,1 @@
+"""Benchmarks that print numbers: `moseg bench pipeline`, `moseg bench synth`."""
