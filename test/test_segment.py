@@ -1,0 +1,133 @@
+"""The object-level entry point (moseg_ros.core.segment.segment_objects) on hand-made and synthetic windows."""
+
+from functools import lru_cache
+
+import cv2
+import numpy as np
+import pytest
+
+from moseg_ros.core import segment
+
+try:
+    from moseg_ros.synth.scenarios import render_sequence
+except ImportError:  # the generator's documented home
+    from moseg_ros.synth.street import render_sequence  # type: ignore[no-redef]
+
+WIDTH, HEIGHT, FRAMES = 621, 188, 8
+
+
+def flows_and_tracks(rgb: list[np.ndarray], max_points: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """DIS flow between consecutive frames and KLT trajectories (forward-backward checked, re-seeded)."""
+    gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in rgb]
+    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+    flows = np.stack([dis.calc(a, b, None) for a, b in zip(gray[:-1], gray[1:])])
+    n_frames = len(gray)
+    xy = np.full((0, n_frames, 2), np.nan, np.float32)
+    alive = np.zeros(0, dtype=np.int64)  # rows of xy still being tracked
+    for t in range(n_frames):
+        if t > 0 and len(alive):
+            prev = xy[alive, t - 1]
+            nxt, ok, _ = cv2.calcOpticalFlowPyrLK(gray[t - 1], gray[t], prev, None, winSize=(15, 15), maxLevel=3)
+            back, ok2, _ = cv2.calcOpticalFlowPyrLK(gray[t], gray[t - 1], nxt, None, winSize=(15, 15), maxLevel=3)
+            keep = (ok[:, 0] == 1) & (ok2[:, 0] == 1) & (np.linalg.norm(back - prev, axis=1) < 0.5)
+            keep &= np.all((nxt >= 0) & (nxt < [gray[t].shape[1], gray[t].shape[0]]), axis=1)
+            xy[alive[keep], t] = nxt[keep]
+            alive = alive[keep]
+        mask = np.full(gray[t].shape, 255, np.uint8)
+        for x, y in xy[alive, t]:
+            cv2.circle(mask, (int(x), int(y)), 6, 0, -1)
+        new = cv2.goodFeaturesToTrack(gray[t], max_points - len(alive), 0.001, 6, mask=mask) \
+            if len(alive) < max_points else None
+        if new is not None:
+            rows = np.full((len(new), n_frames, 2), np.nan, np.float32)
+            rows[:, t] = new.reshape(-1, 2)
+            alive = np.concatenate([alive, np.arange(len(xy), len(xy) + len(new))])
+            xy = np.concatenate([xy, rows])
+    visible = np.isfinite(xy[..., 0])
+    keep = visible.sum(axis=1) >= 2
+    return flows, xy[keep], visible[keep]
+
+
+@lru_cache(maxsize=None)
+def street(scenario: str, seed: int = 0):
+    seq = render_sequence(scenario, seed=seed, n_frames=FRAMES, width=WIDTH, height=HEIGHT)
+    labels = np.stack([f.instances for f in seq.frames])
+    flows, xy, visible = flows_and_tracks([f.rgb for f in seq.frames])
+    return labels, flows, xy, visible, seq
+
+
+def dynamic_names(scenario: str, views: tuple[str, ...]) -> set[str]:
+    labels, flows, xy, visible, seq = street(scenario)
+    result = segment.segment_objects(labels, flows, xy, visible, views=views)
+    assert result.object_ids[0] == 0 and not result.dynamic[0]
+    return {seq.object_names[int(i)] for i, d in zip(result.object_ids, result.dynamic) if d}
+
+
+def test_fused_views_catch_the_car_ahead_that_the_epipolar_view_misses():
+    # Same lane, same direction, 4 % faster: its points stay on the camera's epipolar lines.
+    assert dynamic_names("ahead", ("epipolar",)) == set()
+    assert dynamic_names("ahead", ("epipolar", "flow")) == {"car_ahead"}
+
+
+def test_parked_car_is_not_flagged():
+    assert dynamic_names("parked", ("epipolar", "flow")) == set()
+
+
+def test_crossing_pedestrian_is_flagged():
+    assert dynamic_names("pedestrian", ("epipolar", "flow")) == {"pedestrian"}
+
+
+def test_result_fields_are_consistent():
+    labels, flows, xy, visible, seq = street("ahead")
+    result = segment.segment_objects(labels, flows, xy, visible)
+    assert result.object_ids.tolist() == [0, *sorted(seq.object_names)]
+    assert result.cluster[0] == result.background_cluster
+    assert np.array_equal(result.dynamic, result.cluster != result.background_cluster)
+    assert result.n_motions == len(np.unique(result.cluster))
+    assert np.all((result.confidence >= 0) & (result.confidence <= 1))
+
+
+def _still_window(n_frames: int = 4, size: tuple[int, int] = (40, 60)) -> tuple[np.ndarray, ...]:
+    """A window where nothing moves: zero flow, tracks standing still, object 5 a block and object 9 one pixel."""
+    labels = np.zeros((n_frames, *size), dtype=np.int32)
+    labels[:, 5:25, 10:40] = 5
+    labels[:, 30, 50] = 9
+    flows = np.zeros((n_frames - 1, *size, 2), dtype=np.float32)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([0, 0], [size[1] - 1, size[0] - 1], (200, 2))
+    xy = np.repeat(pts[:, None], n_frames, axis=1) + rng.normal(0, 0.05, (200, n_frames, 2))
+    return labels, flows, xy, np.ones((200, n_frames), dtype=bool)
+
+
+def test_small_cases():
+    labels, flows, xy, visible = _still_window()
+    only_background = segment.segment_objects(np.zeros_like(labels), flows, xy, visible)
+    assert only_background.object_ids.tolist() == [0] and only_background.n_motions == 1
+    assert not only_background.dynamic.any() and only_background.confidence.tolist() == [1.0]
+    still = segment.segment_objects(labels, flows, xy, visible)
+    assert still.object_ids.tolist() == [0, 5, 9]
+    assert not still.dynamic.any()
+    assert still.confidence[2] == 0.0  # object 9: no trajectory, no flow vector: unseen, left static
+    forced = segment.segment_objects(labels, flows, xy, visible, n_motions=1)
+    assert forced.n_motions == 1 and not forced.dynamic.any()
+
+
+def test_track_objects_majority_vote():
+    labels = np.zeros((3, 10, 10), dtype=np.int32)
+    labels[:, :, 5:] = 4
+    xy = np.array([[[6, 1], [6, 1], [2, 1]], [[1, 1], [7, 2], [1, 1]], [[20, 1], [20, 1], [20, 1]]], float)
+    visible = np.array([[True, True, True], [True, True, True], [True, True, True]])
+    owner = segment.track_objects(labels, xy, visible, np.array([0, 4]))
+    assert owner.tolist() == [1, 0, -1]  # 2 of 3 frames on object 4; 2 of 3 on background; outside the image
+
+
+def test_bad_input_raises():
+    labels, flows, xy, visible = _still_window()
+    with pytest.raises(ValueError, match="views"):
+        segment.segment_objects(labels, flows, xy, visible, views=("depth",))
+    with pytest.raises(ValueError, match="flows"):
+        segment.segment_objects(labels, flows[:-1], xy, visible)
+    with pytest.raises(ValueError, match="tracks_visible"):
+        segment.segment_objects(labels, flows, xy, visible[:, :-1])
+    with pytest.raises(ValueError, match="n_motions"):
+        segment.segment_objects(labels, flows, xy, visible, n_motions=4)
