@@ -82,6 +82,13 @@ class _Probe:
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
         self.diagnostics = {kv.key: kv.value for kv in msg.status[0].values}
 
+    def wait_for_node(self, timeout: float = 30.0) -> bool:
+        """Both directions matched, then a moment for the remaining endpoints (discovery is asymmetric)."""
+        found = self.spin_until(lambda: self.publisher.get_subscription_count() > 0
+                                and self.node.count_publishers("/segmenter/dynamic_mask") > 0, timeout)
+        self.spin_until(lambda: False, 0.5)
+        return found
+
     def spin_until(self, condition, timeout: float) -> bool:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
@@ -117,7 +124,7 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
     process, log = segmenter
     probe = _Probe(ros_domain, monkeypatch)
     try:
-        assert probe.spin_until(lambda: probe.publisher.get_subscription_count() > 0, 30), "node not discovered"
+        assert probe.wait_for_node(), "node not discovered"
         frames = textured_frames(8)
         second = 1_000_000_000
         good = [_image(f, (10 + i) * second) for i, f in enumerate(frames[:3])]
@@ -180,7 +187,7 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
     process = start_segmenter(ros_domain, log, params=["compressed_input:=true"])
     probe = _Probe(ros_domain, monkeypatch, CompressedImage)
     try:
-        assert probe.spin_until(lambda: probe.publisher.get_subscription_count() > 0, 30), log.read_text()
+        assert probe.wait_for_node(), log.read_text()
         for i, frame in enumerate(textured_frames(4)):
             msg = CompressedImage(format="jpeg")
             msg.header.frame_id = "camera"
