@@ -24,6 +24,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
     "eval": ("benchmarks on a data folder of a known layout", {
         "kt3dmoseg": ("moseg_ros.eval.kt3dmoseg", "KT3DMoSeg trajectory-level motion segmentation benchmark"),
+        "kt3dmoseg-masks": ("moseg_ros.eval.kt3dmoseg_masks",
+                            "the node's dynamic masks on real KT3DMoSeg frames, scored at labelled points"),
     }),
     "bench": ("speed benchmarks that print numbers", {
         "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),

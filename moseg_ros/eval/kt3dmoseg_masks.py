@@ -1,0 +1,130 @@
+"""Score the node's dynamic masks on real KITTI street frames at KT3DMoSeg's labelled points.
+
+For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``), the pipeline runs over the frames
+exactly as the node would, and each labelled trajectory point visible in a frame is looked up in that frame's
+dynamic mask (``mask[round(y), round(x)]``). Label 1 is the static background, labels >= 2 are independently
+moving objects. Reported per clip: recall on moving points, the share of static points flagged (an upper
+bound: label 1 includes a few unannotated movers), and ms per frame. The first frame of each clip (no
+motion evidence yet) is not scored. Clips without frames are listed and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip
+from moseg_ros.pipeline import Pipeline, PipelineConfig
+
+FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
+
+
+@dataclass
+class ClipMaskScore:
+    """One clip's point-level agreement of dynamic masks with the labels."""
+
+    clip: str
+    frames: int
+    moving_points: int
+    static_points: int
+    moving_recall: float
+    static_flagged: float
+    ms_per_frame: float
+
+
+def frames_folder(root: Path, clip: str) -> Path | None:
+    """The clip's frame folder under root/OriginalSequences, matched case-insensitively, or None."""
+    folder = root / "OriginalSequences"
+    if not folder.is_dir():
+        return None
+    matches = [p for p in folder.iterdir() if p.is_dir() and p.name.lower() == clip.lower()]
+    return matches[0] if matches else None
+
+
+def points_in_masks(masks: list[np.ndarray], clip: Clip) -> np.ndarray:
+    """(N, F) bool: whether each trajectory point lies in its frame's dynamic mask (False where not visible)."""
+    height, width = masks[0].shape
+    hits = np.zeros(clip.visible.shape, dtype=bool)
+    for t, mask in enumerate(masks):
+        seen = clip.visible[:, t]
+        xy = np.rint(clip.tracks[seen, t]).astype(np.int64)
+        inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
+        rows = np.flatnonzero(seen)[inside]
+        hits[rows, t] = mask[xy[inside, 1], xy[inside, 0]] > 0
+    return hits
+
+
+def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore:
+    """Run the pipeline over the clip's frames and score its masks at the labelled points."""
+    n = min(len(frame_paths), clip.visible.shape[1])
+    pipeline = Pipeline(config)
+    masks, seconds = [], []
+    for t in range(n):
+        frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
+        if frame is None:
+            raise ValueError(f"cannot read frame {frame_paths[t]}")
+        result = pipeline.process(frame, t * FRAME_PERIOD_NS)
+        masks.append(result.masks.dynamic)
+        seconds.append(result.seconds)
+    hits = points_in_masks(masks, Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels))
+    scored = clip.visible[:, :n].copy()
+    scored[:, 0] = False
+    moving = (clip.labels >= 2)[:, None] & scored
+    static = (clip.labels == 1)[:, None] & scored
+    return ClipMaskScore(
+        clip=clip.name, frames=n, moving_points=int(moving.sum()), static_points=int(static.sum()),
+        moving_recall=float(hits[moving].mean()) if moving.any() else float("nan"),
+        static_flagged=float(hits[static].mean()) if static.any() else float("nan"),
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if n > 1 else float("nan"))
+
+
+def evaluate(root: Path, config: PipelineConfig = PipelineConfig()) -> tuple[list[ClipMaskScore], list[str]]:
+    """Score every clip of ``root`` that has frames; returns the scores and the names of clips without frames."""
+    scores, without = [], []
+    for path in find_clips(root):
+        clip = load_clip(path)
+        folder = frames_folder(root, clip.name)
+        frame_paths = sorted(folder.glob("*.png")) if folder else []
+        if not frame_paths:
+            without.append(clip.name)
+            continue
+        scores.append(score_clip(clip, frame_paths, config))
+    return scores, without
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `moseg eval kt3dmoseg-masks`."""
+    parser.add_argument("dir", type=Path, nargs="?", default=None,
+                        help="KT3DMoSeg folder (Data/*.mat and OriginalSequences/); default ../shared/data/kt3dmoseg")
+    parser.add_argument("--json", type=Path, help="also write the per-clip rows and means to this file")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the per-clip table and the means."""
+    root = args.dir or default_dir()
+    if not find_clips(root):
+        print(f"no Seq*_Tracks.mat clips under {root}")
+        return 2
+    with threadpool_limits(1):
+        scores, without = evaluate(root)
+    print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
+          f"{'static flagged %':>16s} {'ms/frame':>9s}")
+    for s in scores:
+        print(f"{s.clip:16s} {s.frames:6d} {s.moving_points:10d} {s.static_points:10d} {100 * s.moving_recall:9.1f} "
+              f"{100 * s.static_flagged:16.2f} {s.ms_per_frame:9.1f}")
+    means = {"moving_recall_mean": float(np.nanmean([s.moving_recall for s in scores])) if scores else float("nan"),
+             "static_flagged_mean": float(np.nanmean([s.static_flagged for s in scores])) if scores else float("nan"),
+             "clips_scored": len(scores), "clips_without_frames": without}
+    print(f"mean over {len(scores)} clips: moving-point recall {100 * means['moving_recall_mean']:.1f} %, "
+          f"static points flagged {100 * means['static_flagged_mean']:.2f} %")
+    if without:
+        print(f"skipped (no frames): {', '.join(without)}")
+    if args.json:
+        args.json.write_text(json.dumps({**means, "clips": [asdict(s) for s in scores]}, indent=2) + "\n")
+    return 0
