@@ -131,3 +131,5 @@ def test_bad_input_raises():
         segment.segment_objects(labels, flows, xy, visible[:, :-1])
     with pytest.raises(ValueError, match="n_motions"):
         segment.segment_objects(labels, flows, xy, visible, n_motions=4)
+    with pytest.raises(ValueError, match="ids >= 0"):
+        segment.segment_objects(labels - 1, flows, xy, visible)

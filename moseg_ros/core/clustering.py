@@ -6,13 +6,14 @@
   each view v, U_v = top-K eigenvectors of S_v + λ Σ_{w≠v} U_w U_wᵀ (the minimizer of
   tr(U_vᵀ L_v U_v) − λ Σ_w tr(U_v U_vᵀ U_w U_wᵀ)); then k-means on the row-normalized concatenation of the U_v
   (as in Xu et al. 2018).
-* Number of motions: the largest relative eigengap of the (mean) normalized affinity.
+* Number of motions: the largest eigengap of the (mean) normalized affinity.
 * Misclassification rate: the fraction of items whose cluster is wrong under the best one-to-one matching of
   clusters to labels (Hungarian algorithm, scipy.optimize.linear_sum_assignment).
 """
 
 from __future__ import annotations
 
+import warnings
 from typing import Sequence
 
 import numpy as np
@@ -21,7 +22,6 @@ import scipy.sparse
 import scipy.sparse.linalg
 from scipy.cluster.vq import kmeans2
 from scipy.optimize import linear_sum_assignment
-
 
 _DENSE_MAX = 300
 """Up to this many items eigenproblems are solved densely; above, by Lanczos on the sparse affinity."""
@@ -78,7 +78,10 @@ def kmeans(points: np.ndarray, k: int, rng: np.random.Generator, *, n_init: int 
     """Best of n_init k-means++ runs (scipy kmeans2) by within-cluster sum of squares -> (N,) labels."""
     best, best_cost = None, np.inf
     for _ in range(n_init):
-        centres, labels = kmeans2(points, k, minit="++", seed=rng)
+        with warnings.catch_warnings():
+            # A restart that loses a cluster only costs more; the best restart is kept.
+            warnings.filterwarnings("ignore", message="One of the clusters is empty")
+            centres, labels = kmeans2(points, k, minit="++", seed=rng)
         cost = float(np.sum((points - centres[labels]) ** 2))
         if cost < best_cost:
             best, best_cost = labels, cost

@@ -63,7 +63,7 @@ def hartley_normalization(x: np.ndarray, weights: np.ndarray) -> np.ndarray:
 
 def _apply(T: np.ndarray, x: np.ndarray) -> np.ndarray:
     """Apply (B, 3, 3) affine-normalizing transforms to (B, N, 2) points."""
-    return np.einsum("bij,bnj->bni", T[:, :2, :2], x) + T[:, None, :2, 2]
+    return x @ np.swapaxes(T[:, :2, :2], 1, 2) + T[:, None, :2, 2]
 
 
 def _collinear(x: np.ndarray, weights: np.ndarray, tol: float) -> np.ndarray:

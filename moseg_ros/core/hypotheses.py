@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.spatial
 
 from moseg_ros.core import flow_model, geometry
 
@@ -81,29 +80,9 @@ def sample_minimal_sets(n_points: int, sample_size: int, n_samples: int, rng: np
         out[repeat] = rng.integers(0, n_points, size=(int(repeat.sum()), sample_size))
 
 
-def sample_local_sets(points: np.ndarray, sample_size: int, n_samples: int, n_neighbours: int,
-                      rng: np.random.Generator) -> np.ndarray:
-    """Random samples of a seed point and sample_size - 1 distinct points among its n_neighbours nearest.
-
-    Args:
-        points: (n, d) features the neighbourhoods are taken in (e.g. positions in both frames).
-
-    Returns:
-        (n_samples, sample_size) indices.
-    """
-    n = len(points)
-    k = int(min(n - 1, max(n_neighbours, sample_size)))
-    if k < sample_size - 1:
-        raise ValueError(f"cannot draw samples of {sample_size} distinct points from {n}")
-    _, neighbours = scipy.spatial.cKDTree(points).query(points, k=k + 1)
-    seeds = rng.integers(0, n, size=n_samples)
-    pick = np.argpartition(rng.random((n_samples, k)), sample_size - 2, axis=1)[:, :sample_size - 1] + 1
-    return np.concatenate([seeds[:, None], neighbours[seeds[:, None], pick]], axis=1)
-
-
 def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str, *, gap: int,
-                          n_hypotheses: int, rng: np.random.Generator, local_fraction: float = 0.0,
-                          n_neighbours: int = 30, oversample: float = 1.2) -> list[ResidualBlock]:
+                          n_hypotheses: int, rng: np.random.Generator,
+                          oversample: float = 1.2) -> list[ResidualBlock]:
     """Random minimal-sample hypotheses of one model type for every frame pair (MVC style).
 
     For each pair (m, m + gap), the trajectories visible in both frames are the data; ``n_hypotheses`` models
@@ -137,12 +116,7 @@ def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str
             continue
         pairs.append((m0, m1))
         items.append(present)
-        n_local = int(round(local_fraction * n_draw))
-        idx = sample_minimal_sets(len(present), size, n_draw - n_local, rng)
-        if n_local:
-            feats = np.concatenate([tracks_xy[present, m0], tracks_xy[present, m1]], axis=1)
-            idx = np.concatenate([sample_local_sets(feats, size, n_local, n_neighbours, rng), idx])
-        samples.append(present[idx])
+        samples.append(present[sample_minimal_sets(len(present), size, n_draw, rng)])
     if not pairs:
         return []
     first = np.repeat([p[0] for p in pairs], n_draw)[:, None]
