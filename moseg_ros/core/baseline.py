@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from moseg_ros.core import geometry
 from moseg_ros.frontend.flow import forward_backward_error, pixel_grid
 
 
@@ -58,26 +59,14 @@ class EpipolarResidual:
     homography: np.ndarray | None = None
 
 
-def sampson_distance_map(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """Sampson distance of many correspondences under one F (Hartley & Zisserman eq. 11.9).
+def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """(N,) Sampson distance in pixels of N correspondences (matches^T F points = 0) under one F."""
+    return np.sqrt(geometry.sampson_distance(fundamental[None], points, matches)[0])
 
-    Args:
-        fundamental: (3, 3) F with matches^T F points = 0.
-        points: (..., 2) pixel positions x.
-        matches: (..., 2) corresponding positions x'.
 
-    Returns:
-        (...) squared Sampson distance (x'^T F x)^2 / ((Fx)_1^2 + (Fx)_2^2 + (F^T x')_1^2 + (F^T x')_2^2).
-    """
-    f = fundamental.astype(points.dtype)
-    ones = np.ones(points.shape[:-1] + (1,), dtype=points.dtype)
-    x = np.concatenate([points, ones], axis=-1)
-    xp = np.concatenate([matches, ones], axis=-1)
-    fx = x @ f.T
-    ftxp = xp @ f
-    numerator = np.einsum("...i,...i->...", xp, fx) ** 2
-    denominator = fx[..., 0] ** 2 + fx[..., 1] ** 2 + ftxp[..., 0] ** 2 + ftxp[..., 1] ** 2
-    return numerator / np.maximum(denominator, 1e-12)
+def homography_distance(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """(N,) root-mean symmetric transfer error in pixels of N correspondences (matches ~ H points)."""
+    return np.sqrt(0.5 * geometry.homography_transfer_error(homography[None], points, matches)[0])
 
 
 def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
@@ -123,33 +112,15 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     here, there = grid[valid], grid[valid] + to_previous[valid]
     if planar:
         h_inliers = h_inliers.ravel().astype(bool)
-        residual[valid] = transfer_distance_map(homography, here, there)
-        inlier_distance = transfer_distance_map(homography, points[h_inliers], matches[h_inliers])
+        residual[valid] = homography_distance(homography, here, there)
+        inlier_distance = homography_distance(homography, points[h_inliers], matches[h_inliers])
     else:
         homography = None
-        residual[valid] = np.sqrt(sampson_distance_map(fundamental, here, there))
-        inlier_distance = np.sqrt(sampson_distance_map(fundamental, points[inliers], matches[inliers]))
+        residual[valid] = sampson_pixels(fundamental, here, there)
+        inlier_distance = sampson_pixels(fundamental, points[inliers], matches[inliers])
     noise = 1.4826 * np.median(inlier_distance)
     threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
     return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()), homography)
-
-
-def transfer_distance_map(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """One-sided transfer error |x' - H x| in pixels (Hartley & Zisserman eq. 4.6).
-
-    Args:
-        homography: (3, 3) H with x' ~ H x.
-        points: (..., 2) positions x.
-        matches: (..., 2) corresponding positions x'.
-
-    Returns:
-        (...) distance in pixels.
-    """
-    ones = np.ones(points.shape[:-1] + (1,), dtype=points.dtype)
-    mapped = np.concatenate([points, ones], axis=-1) @ homography.astype(points.dtype).T
-    projected = mapped[..., :2] / np.where(np.abs(mapped[..., 2:]) < 1e-12, 1e-12, mapped[..., 2:])
-    offset = matches - projected
-    return np.hypot(offset[..., 0], offset[..., 1])
 
 
 def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,
