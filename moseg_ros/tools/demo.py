@@ -88,7 +88,9 @@ def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) ->
     sheet = np.vstack([np.hstack(small[i:i + 2]) for i in range(0, len(small), 2)])
     sheet_path, video_path = out_dir / "overlay_sheet.png", out_dir / "overlay.mp4"
     cv2.imwrite(str(sheet_path), cv2.cvtColor(sheet, cv2.COLOR_RGB2BGR))
-    imageio.mimwrite(video_path, frames, fps=10, macro_block_size=2, quality=7)
+    # H.264 needs even sizes: drop a last odd row/column rather than let the writer rescale every frame.
+    even = [f[: f.shape[0] - f.shape[0] % 2, : f.shape[1] - f.shape[1] % 2] for f in frames]
+    imageio.mimwrite(video_path, even, fps=10, macro_block_size=1, quality=7)
     return {"contact_sheet": str(sheet_path), "video": str(video_path)}
 
 
