@@ -206,3 +206,25 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
     finally:
         probe.close()
         stop_segmenter(process)
+
+
+def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, monkeypatch):
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50"])
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.wait_for_node(), log.read_text()
+        frames = textured_frames(15, 375, 1242)
+        for i, frame in enumerate(frames):  # a burst far faster than the worker
+            probe.publisher.publish(_image(frame, (40 + i) * 1_000_000_000))
+        assert probe.spin_until(lambda: probe.diagnostics.get("frames_in") == "15"
+                                and probe.diagnostics.get("queued") == "0", 20), probe.diagnostics
+        probe.spin_until(lambda: False, 1.5)  # one more diagnostics period after the last frame is out
+        counts = {k: int(probe.diagnostics[k]) for k in ("frames_in", "frames_out", "dropped")}
+        assert counts["dropped"] > 0 and counts["frames_out"] + counts["dropped"] == 15, counts
+        assert len(probe.masks) == counts["frames_out"]
+        assert stamp_to_ns(probe.masks[-1].header.stamp) == 54 * 1_000_000_000  # the newest frame won
+        assert process.poll() is None
+    finally:
+        probe.close()
+        stop_segmenter(process)
