@@ -29,12 +29,17 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, Hi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.core.baseline import BaselineConfig
+from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.io.frames import decode_frame, decode_instances
 from moseg_ros.io.image import image_from_array
 from moseg_ros.pipeline import METHODS, FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import debug_overlay
 
 QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
+# String parameters with a closed set of values; checked at start (descriptors cannot express choices).
+CHOICES: dict[str, tuple[str, ...]] = {
+    "image_qos": QOS_CHOICES, "method": METHODS, "flow_preset": tuple(DIS_PRESETS),
+}
 
 
 def _describe(text: str, *, choices: tuple[str, ...] = (), low: float | None = None,
@@ -53,17 +58,17 @@ def _describe(text: str, *, choices: tuple[str, ...] = (), low: float | None = N
 
 # name -> (default, descriptor). Ranges are enforced by rclpy at declaration time.
 PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
-    "image_qos": ("sensor_data", _describe("QoS of the image subscription", choices=QOS_CHOICES)),
+    "image_qos": ("sensor_data", _describe("QoS of the image subscription", choices=CHOICES["image_qos"])),
     "qos_depth": (5, _describe("history depth of the subscriptions", low=1, high=100, integer=True)),
     "compressed_input": (False, _describe("subscribe image as sensor_msgs/CompressedImage")),
     "use_instances": (False, _describe("pair each image with an upstream instance-id image on `instances`")),
     "instances_timeout_s": (0.2, _describe("how long a frame waits for its instance image", low=0.0, high=5.0)),
     "queue_size": (4, _describe("frames waiting for the worker; the oldest is dropped on overflow",
                                 low=1, high=100, integer=True)),
-    "method": ("epipolar_baseline", _describe("motion decision method", choices=METHODS)),
+    "method": ("epipolar_baseline", _describe("motion decision method", choices=CHOICES["method"])),
     "working_width": (640, _describe("frames are processed at this width (pixels)", low=64, high=4096,
                                      integer=True)),
-    "flow_preset": ("fast", _describe("DIS optical flow preset", choices=("ultrafast", "fast", "medium"))),
+    "flow_preset": ("fast", _describe("DIS optical flow preset", choices=CHOICES["flow_preset"])),
     "mask_margin_px": (6, _describe("dilation of published masks (output pixels)", low=0, high=100,
                                     integer=True)),
     "min_region_area": (60, _describe("smallest moving region kept (working pixels)", low=1, high=100000,
@@ -133,21 +138,18 @@ class SegmenterNode(Node):
             f"input={image_type.__name__} use_instances={self.settings['use_instances']}")
 
     def _check_choices(self) -> None:
-        for name in ("image_qos", "method", "flow_preset"):
-            allowed = PARAMETERS[name][1].additional_constraints.removeprefix("one of: ").split(", ")
+        for name, allowed in CHOICES.items():
             if self.settings[name] not in allowed:
-                raise ValueError(f"parameter {name}={self.settings[name]!r} is not one of {allowed}")
+                raise ValueError(f"parameter {name}={self.settings[name]!r} is not one of {list(allowed)}")
 
     def _pipeline_config(self) -> PipelineConfig:
         s = self.settings
-        config = PipelineConfig(
+        return PipelineConfig(
             method=s["method"], working_width=s["working_width"], flow_preset=s["flow_preset"],
             mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
             min_persistence=s["min_persistence"],
             instance_min_fraction=s["instance_min_fraction"],
             baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
-        config.validate()
-        return config
 
     def _input_qos(self) -> QoSProfile:
         depth = self.settings["qos_depth"]
