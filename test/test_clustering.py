@@ -50,6 +50,30 @@ def test_number_of_motions_from_the_eigengap():
     assert clustering.estimate_n_motions([np.eye(2)], k_min=1) == 2
 
 
+def test_cluster_conductance_hand_example():
+    # Two pairs joined by one edge of weight 0.5: each pair has volume 2·1 + 0.5 and loses 0.5 of it.
+    a = np.array([[0, 1, 0, 0], [1, 0, 0.5, 0], [0, 0.5, 0, 1], [0, 0, 1, 0]], dtype=float) + np.eye(4)
+    assert clustering.cluster_conductance(a, np.array([0, 0, 1, 1])) == pytest.approx([0.2, 0.2])
+    # {0} has its only edge outside; {1, 2, 3} has volume 1.5 + 1.5 + 1 = 4 and loses the edge of weight 1.
+    assert clustering.cluster_conductance(a, np.array([0, 1, 1, 1])) == pytest.approx([1.0, 0.25])
+    assert clustering.cluster_conductance(np.eye(2), np.array([0, 1])).tolist() == [1.0, 1.0]  # no edges: 1
+
+
+def test_unknown_number_of_clusters_by_conductance():
+    rng = np.random.default_rng(4)
+    for sizes in ([60, 40], [40, 30, 20, 15]):
+        truth = np.repeat(np.arange(len(sizes)), sizes)
+        views = [_blocks(rng, sizes, 1.0, 0.0) + 0.002 * (truth[:, None] != truth[None, :]) for _ in range(2)]
+        pred = clustering.coregularized_clustering_unknown_k(views, rng, k_max=6)
+        assert len(np.unique(pred)) == len(sizes)
+        assert clustering.misclassification_rate(pred, truth) == 0.0
+    # One dense block: no split keeps its clusters apart, so the smallest K is kept.
+    one = [_blocks(rng, [80], 1.0, 0.0)] * 2
+    assert len(np.unique(clustering.coregularized_clustering_unknown_k(one, rng, k_min=2, k_max=4))) == 2
+    with pytest.raises(ValueError, match="max_conductance"):
+        clustering.coregularized_clustering_unknown_k(one, rng, max_conductance=1.5)
+
+
 def test_misclassification_rate_hand_examples():
     assert clustering.misclassification_rate([0, 0, 1, 1], [5, 5, 7, 7]) == 0.0
     assert clustering.misclassification_rate([1, 1, 0, 0], [5, 5, 7, 7]) == 0.0  # label names do not matter

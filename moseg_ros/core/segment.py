@@ -30,6 +30,9 @@ class TrajectoryConfig:
         lam: co-regularization weight λ.
         n_iter: co-regularization rounds.
         k_max: largest number of motions considered when estimating it.
+        max_conductance: when estimating the number of motions, the largest K is kept whose every cluster has
+            at most this conductance in every view's sparsified affinity (see
+            clustering.coregularized_clustering_unknown_k).
     """
 
     gap: int = 2
@@ -40,6 +43,7 @@ class TrajectoryConfig:
     lam: float = 0.01
     n_iter: int = 5
     k_max: int = 6
+    max_conductance: float = 0.035
 
 
 def trajectory_kernels(tracks_xy: np.ndarray, visible: np.ndarray, views: tuple[str, ...],
@@ -64,9 +68,10 @@ def segment_trajectories(tracks_xy: np.ndarray, visible: np.ndarray, *,
     """Cluster trajectories by motion.
 
     Per view: ORK kernel over random minimal-sample hypotheses, entropy sparsification; views fused by
-    co-regularized spectral clustering. An unknown number of motions (at least 2) is estimated from the
-    eigengap of the kernels before sparsification: the sparsified graphs keep only near neighbours, so their
-    spectra decay smoothly and show no gap (measured on KT3DMoSeg).
+    co-regularized spectral clustering. An unknown number of motions (at least 2) is the largest K whose
+    clusters each keep all but ``max_conductance`` of their edge weight inside, in every sparsified view: the
+    sparsified graphs keep only near neighbours, so their spectra decay smoothly and show no eigengap
+    (measured on KT3DMoSeg).
 
     Args:
         tracks_xy: (N, F, 2) positions (pixels); visible: (N, F) bool.
@@ -82,8 +87,11 @@ def segment_trajectories(tracks_xy: np.ndarray, visible: np.ndarray, *,
     rng = rng if rng is not None else np.random.default_rng()
     kernels = trajectory_kernels(tracks_xy, visible, tuple(views), config, rng)
     affs = [affinity.sparsify_entropy(k, config.alpha) for k in kernels]
-    k = n_motions if n_motions is not None else clustering.estimate_n_motions(kernels, k_max=config.k_max)
-    return clustering.coregularized_spectral_clustering(affs, k, rng, lam=config.lam, n_iter=config.n_iter)
+    if n_motions is None:
+        return clustering.coregularized_clustering_unknown_k(affs, rng, k_max=config.k_max,
+                                                             max_conductance=config.max_conductance,
+                                                             lam=config.lam, n_iter=config.n_iter)
+    return clustering.coregularized_spectral_clustering(affs, n_motions, rng, lam=config.lam, n_iter=config.n_iter)
 
 
 OBJECT_VIEWS = ("epipolar", "flow")
