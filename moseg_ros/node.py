@@ -79,6 +79,9 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
                                              high=1.0)),
     "residual_threshold_px": (1.5, _describe("epipolar residual above which a pixel moves (working px)",
                                              low=0.1, high=50.0)),
+    "window_length": (8, _describe("object_level: frames in the sliding window", low=3, high=60, integer=True)),
+    "refit_interval": (4, _describe("object_level: frames between refits of the motion models", low=1,
+                                    high=60, integer=True)),
     "diagnostics_period_s": (1.0, _describe("period of /diagnostics", low=0.1, high=60.0)),
     "warn_throttle_s": (5.0, _describe("minimum time between repeated warnings", low=0.0, high=600.0)),
 }
@@ -141,6 +144,8 @@ class SegmenterNode(Node):
         for name, allowed in CHOICES.items():
             if self.settings[name] not in allowed:
                 raise ValueError(f"parameter {name}={self.settings[name]!r} is not one of {list(allowed)}")
+        if self.settings["method"] == "object_level" and not self.settings["use_instances"]:
+            raise ValueError("method object_level segments instances: set use_instances:=true and remap `instances`")
 
     def _pipeline_config(self) -> PipelineConfig:
         s = self.settings
@@ -148,7 +153,8 @@ class SegmenterNode(Node):
             method=s["method"], working_width=s["working_width"], flow_preset=s["flow_preset"],
             mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
             min_persistence=s["min_persistence"],
-            instance_min_fraction=s["instance_min_fraction"],
+            instance_min_fraction=s["instance_min_fraction"], window_length=s["window_length"],
+            refit_interval=s["refit_interval"],
             baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
 
     def _input_qos(self) -> QoSProfile:

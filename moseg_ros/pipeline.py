@@ -14,11 +14,17 @@ import cv2
 import numpy as np
 
 from moseg_ros.core.baseline import BaselineConfig, dynamic_instances, epipolar_residual
+from moseg_ros.core.segment import segment_objects
 from moseg_ros.frontend.flow import DIS_PRESETS, DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.frontend.tracks import PointTracker
+from moseg_ros.frontend.window import Window, WindowFrame
 from moseg_ros.render import Masks, render_masks
 
-METHODS = ("epipolar_baseline",)
+# epipolar_baseline: one dominant epipolar geometry, per-pixel residuals (core/baseline.py).
+# object_level: the paper's fused epipolar + flow models per instance over a sliding window (core/segment.py);
+#   it needs an instance map with every frame and falls back to the baseline for frames without one.
+METHODS = ("epipolar_baseline", "object_level")
 
 
 @dataclass(frozen=True)
@@ -32,6 +38,8 @@ class PipelineConfig:
     min_region_area: int = 60
     min_persistence: int = 2
     instance_min_fraction: float = 0.3
+    window_length: int = 8
+    refit_interval: int = 4
     baseline: BaselineConfig = field(default_factory=BaselineConfig)
 
     def validate(self) -> None:
@@ -50,6 +58,10 @@ class PipelineConfig:
             raise ValueError(f"min_persistence {self.min_persistence} must be >= 1")
         if not 0.0 < self.instance_min_fraction <= 1.0:
             raise ValueError(f"instance_min_fraction {self.instance_min_fraction} must be in (0, 1]")
+        if self.window_length < 3:
+            raise ValueError(f"window_length {self.window_length} must be >= 3")
+        if self.refit_interval < 1:
+            raise ValueError(f"refit_interval {self.refit_interval} must be >= 1")
 
 
 @dataclass
@@ -87,6 +99,11 @@ class Pipeline:
         self.config = config
         self._flow = DenseFlow(config.flow_preset)
         self._tracker = InstanceTracker()
+        self._points = PointTracker()
+        self._window = Window(config.window_length)
+        self._object_dynamic = np.zeros(0, dtype=np.int32)
+        self._known_objects: set[int] = set()
+        self._since_refit = 0
         self._previous: np.ndarray | None = None
         self._last_stamp: int | None = None
         self._input_size: tuple[int, int] | None = None
@@ -98,6 +115,11 @@ class Pipeline:
         self._last_stamp = None
         self._input_size = None
         self._tracker.reset()
+        self._points.reset()
+        self._window.reset()
+        self._object_dynamic = np.zeros(0, dtype=np.int32)
+        self._known_objects = set()
+        self._since_refit = 0
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
         scale = min(1.0, self.config.working_width / width)
@@ -138,23 +160,51 @@ class Pipeline:
         previous, self._previous = self._previous, gray
         self._last_stamp, self._input_size = stamp_ns, size
 
+        if instances is not None:
+            instances = cv2.resize(instances.astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
+        objects = self.config.method == "object_level" and instances is not None
+        if self.config.method == "object_level":
+            self._points.update(gray)
         labels = np.zeros((h, w), dtype=np.int32)
         dynamic_ids = np.zeros(0, dtype=np.int32)
         if previous is None:
             status = "warmup" if status == "ok" else status
+            if objects:
+                self._push_window(instances, None)
+        elif objects:
+            labels, dynamic_ids = self._decide_objects(instances, self._flow(previous, gray))
         else:
-            labels, dynamic_ids, found = self._decide(previous, gray, instances, (h, w))
+            labels, dynamic_ids, found = self._decide(previous, gray, instances)
             if not found and status == "ok":
                 status = "no_geometry"
+            if self.config.method == "object_level" and status == "ok":
+                status = "no_instances"
         masks = render_masks(labels, dynamic_ids, size, self.config.mask_margin_px)
         return FrameResult(stamp_ns, masks, status, dynamic_ids, time.perf_counter() - start)
 
-    def _decide(self, previous: np.ndarray, gray: np.ndarray, instances: np.ndarray | None,
-                working: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, bool]:
+    def _push_window(self, labels: np.ndarray, flow: np.ndarray | None) -> None:
+        self._window.push(WindowFrame(labels, flow, self._points.ids.copy(), self._points.points.copy()))
+
+    def _decide_objects(self, labels: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Refit the object-level motion models every few frames (or when an object appears); in between,
+        each instance keeps its last decision, carried by its id."""
+        self._push_window(labels, flow)
+        present = set(np.unique(labels).tolist()) - {0}
+        appeared = bool(present - self._known_objects)
+        self._known_objects |= present
+        self._since_refit += 1
+        if len(self._window) >= 3 and (self._since_refit >= self.config.refit_interval or appeared):
+            result = segment_objects(*self._window.arrays(), rng=np.random.default_rng(0))
+            self._object_dynamic = result.object_ids[result.dynamic].astype(np.int32)
+            self._since_refit = 0
+        return labels, np.intersect1d(self._object_dynamic, np.array(sorted(present), dtype=np.int32))
+
+    def _decide(self, previous: np.ndarray, gray: np.ndarray,
+                instances: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, bool]:
         evidence = epipolar_residual(self._flow(gray, previous), self._flow(previous, gray), self.config.baseline)
         moving = evidence.residual > evidence.threshold
         if instances is not None:
-            labels = cv2.resize(instances.astype(np.int32), working[::-1], interpolation=cv2.INTER_NEAREST)
+            labels = instances
             ids = dynamic_instances(labels, moving, evidence.valid, self.config.instance_min_fraction)
         else:
             labels = self._tracker.update(propose_regions(moving, self.config.min_region_area))

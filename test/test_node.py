@@ -228,3 +228,39 @@ def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, 
     finally:
         probe.close()
         stop_segmenter(process)
+
+
+def test_object_level_needs_instances(ros_domain, tmp_path):
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["method:=object_level"])
+    assert process.wait(timeout=20) == 2
+    assert "use_instances:=true" in log.read_text()
+
+
+def test_upstream_instances_are_paired_by_stamp(ros_domain, tmp_path, monkeypatch):
+    from test_pipeline import block_truth
+
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["use_instances:=true", "mask_margin_px:=0"])
+    probe = _Probe(ros_domain, monkeypatch)
+    labels: list[Image] = []
+    probe.node.create_subscription(Image, "/segmenter/instance_labels", labels.append, RELIABLE)
+    instances = probe.node.create_publisher(Image, "/instances", RELIABLE)
+    try:
+        assert probe.wait_for_node(), log.read_text()
+        assert probe.spin_until(lambda: instances.get_subscription_count() > 0, 10)
+        for i, frame in enumerate(textured_frames(6)):
+            ids = np.zeros(frame.shape[:2], np.int32)
+            ids[block_truth(i)] = 7   # the sliding block
+            ids[150:, 500:] = 3       # a static region
+            stamp = (60 + i) * 1_000_000_000
+            instances.publish(_image(ids, stamp, "32SC1"))
+            probe.send_and_wait(_image(frame, stamp), expect_mask=True)
+        assert probe.spin_until(lambda: len(labels) == 6, 5)
+        last = np.frombuffer(bytes(labels[-1].data), np.int32).reshape(188, 621)
+        assert set(np.unique(last)) == {0, 7}                       # the upstream id, not a proposal's
+        assert (last[block_truth(5)] == 7).mean() > 0.95
+        assert probe.diagnostics.get("frames_without_instances", "0") == "0"
+    finally:
+        probe.close()
+        stop_segmenter(process)
