@@ -177,8 +177,9 @@ class Pipeline:
             labels, dynamic_ids, found = self._decide(previous, gray, instances)
             if not found and status == "ok":
                 status = "no_geometry"
-            if self.config.method == "object_level" and status == "ok":
-                status = "no_instances"
+            if self.config.method == "object_level":
+                self._window.reset()  # the window must hold consecutive frames; refill it from the next one
+                status = "no_instances" if status == "ok" else status
         masks = render_masks(labels, dynamic_ids, size, self.config.mask_margin_px)
         return FrameResult(stamp_ns, masks, status, dynamic_ids, time.perf_counter() - start)
 

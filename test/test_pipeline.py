@@ -100,3 +100,12 @@ def test_object_level_without_instances_falls_back_to_the_baseline():
     pipeline = Pipeline(PipelineConfig(method="object_level"))
     statuses = [pipeline.process(frame, i * STEP).status for i, frame in enumerate(textured_frames(3))]
     assert statuses == ["warmup", "no_instances", "no_instances"]
+
+
+def test_object_level_survives_a_frame_without_instances():
+    pipeline = Pipeline(PipelineConfig(method="object_level", refit_interval=2))
+    statuses = []
+    for i, frame in enumerate(textured_frames(10)):
+        instances = None if i == 5 else np.where(block_truth(i), 7, 0).astype(np.int32)
+        statuses.append(pipeline.process(frame, i * STEP, instances).status)
+    assert statuses == ["warmup"] + ["ok"] * 4 + ["no_instances"] + ["ok"] * 4
