@@ -8,10 +8,7 @@ import pytest
 
 from moseg_ros.core import segment
 
-try:
-    from moseg_ros.synth.scenarios import render_sequence
-except ImportError:  # the generator's documented home
-    from moseg_ros.synth.street import render_sequence  # type: ignore[no-redef]
+from moseg_ros.synth.scenarios import render_sequence
 
 WIDTH, HEIGHT, FRAMES = 621, 188, 8
 
