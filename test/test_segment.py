@@ -7,6 +7,9 @@ import numpy as np
 import pytest
 
 from moseg_ros.core import segment
+from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
+from moseg_ros.frontend.window import Window, WindowFrame
 
 from moseg_ros.synth.scenarios import render_sequence
 
@@ -14,33 +17,17 @@ WIDTH, HEIGHT, FRAMES = 621, 188, 8
 
 
 def flows_and_tracks(rgb: list[np.ndarray], max_points: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """DIS flow between consecutive frames and KLT trajectories (forward-backward checked, re-seeded)."""
+    """DIS flow between consecutive frames and KLT trajectories from the front-end (frontend/tracks.py)."""
     gray = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in rgb]
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    flows = np.stack([dis.calc(a, b, None) for a, b in zip(gray[:-1], gray[1:])])
-    n_frames = len(gray)
-    xy = np.full((0, n_frames, 2), np.nan, np.float32)
-    alive = np.zeros(0, dtype=np.int64)  # rows of xy still being tracked
-    for t in range(n_frames):
-        if t > 0 and len(alive):
-            prev = xy[alive, t - 1]
-            nxt, ok, _ = cv2.calcOpticalFlowPyrLK(gray[t - 1], gray[t], prev, None, winSize=(15, 15), maxLevel=3)
-            back, ok2, _ = cv2.calcOpticalFlowPyrLK(gray[t], gray[t - 1], nxt, None, winSize=(15, 15), maxLevel=3)
-            keep = (ok[:, 0] == 1) & (ok2[:, 0] == 1) & (np.linalg.norm(back - prev, axis=1) < 0.5)
-            keep &= np.all((nxt >= 0) & (nxt < [gray[t].shape[1], gray[t].shape[0]]), axis=1)
-            xy[alive[keep], t] = nxt[keep]
-            alive = alive[keep]
-        mask = np.full(gray[t].shape, 255, np.uint8)
-        for x, y in xy[alive, t]:
-            cv2.circle(mask, (int(x), int(y)), 6, 0, -1)
-        new = cv2.goodFeaturesToTrack(gray[t], max_points - len(alive), 0.001, 6, mask=mask) \
-            if len(alive) < max_points else None
-        if new is not None:
-            rows = np.full((len(new), n_frames, 2), np.nan, np.float32)
-            rows[:, t] = new.reshape(-1, 2)
-            alive = np.concatenate([alive, np.arange(len(xy), len(xy) + len(new))])
-            xy = np.concatenate([xy, rows])
-    visible = np.isfinite(xy[..., 0])
+    flow = DenseFlow("medium")
+    tracker = PointTracker(TrackerConfig(max_points=max_points, min_distance=6, quality=0.001, fb_max_px=0.5,
+                                         window=15))
+    window = Window(length=len(gray))
+    for t, frame in enumerate(gray):
+        tracker.update(frame)
+        window.push(WindowFrame(np.zeros(frame.shape, np.int32), flow(gray[t - 1], frame) if t else None,
+                                tracker.ids.copy(), tracker.points.copy()))
+    _, flows, xy, visible = window.arrays()
     keep = visible.sum(axis=1) >= 2
     return flows, xy[keep], visible[keep]
 
