@@ -264,3 +264,12 @@ def test_upstream_instances_are_paired_by_stamp(ros_domain, tmp_path, monkeypatc
     finally:
         probe.close()
         stop_segmenter(process)
+
+
+def test_replay_without_a_node_times_out_with_a_clear_error(textured_bag, ros_domain, tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "moseg_ros.cli", "replay", str(textured_bag), "-o", str(tmp_path / "out"),
+         "--domain", str(ros_domain), "--discovery-timeout", "2"],
+        capture_output=True, text=True, timeout=60, env=loopback_env(ros_domain))
+    assert result.returncode == 2, result.stderr
+    assert "moseg replay: error: timed out after 2 s waiting for a segmenter" in result.stderr

@@ -53,3 +53,10 @@ def test_real_kitti_street_is_mostly_left_usable(tmp_path):
                                                                            ["/segmenter/dynamic_mask"])]
     assert len(flagged) == 40
     assert np.mean(flagged) < 0.01
+
+
+def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path, capsys):
+    assert moseg(["process", str(tmp_path / "nope"), "-o", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert "moseg process: error:" in capsys.readouterr().err
+    assert moseg(["process", str(textured_bag), "-o", str(textured_bag), "--no-progress"]) == 2
+    assert "moseg process: error:" in capsys.readouterr().err

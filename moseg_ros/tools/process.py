@@ -73,7 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Process the bag and print the counts; exit 1 when a frame was skipped."""
-    counts = process_bag(args.bag, args.output, image_topic=args.topic, progress=not args.no_progress)
+    """Process the bag and print the counts; exit 1 when a frame was skipped, 2 when the bag cannot be used."""
+    try:
+        counts = process_bag(args.bag, args.output, image_topic=args.topic, progress=not args.no_progress)
+    except (FileNotFoundError, FileExistsError, ValueError) as error:
+        print(f"moseg process: error: {error}", file=sys.stderr)
+        return 2
     print(json.dumps(counts, indent=2))
     return 1 if counts["skipped"] else 0

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -171,13 +172,14 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
 
     report = ReplayReport()
     sent: dict[int, tuple[float, str]] = {}
+    writer = BagWriter(output)  # before any DDS set-up: an unusable output path fails fast and leaks nothing
     context = rclpy.Context()
     rclpy.init(context=context)
     node = rclpy.create_node("moseg_replay", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     spinner = threading.Thread(target=executor.spin, daemon=True)
-    with BagWriter(output) as writer:
+    with writer:
         recorder = _Recorder(node, writer, segmenter)
         try:
             reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -253,10 +255,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay and print the account; exit 1 when any frame got no mask."""
-    report = replay(args.bag, args.output, image_topic=args.topic, segmenter=args.segmenter, rate=args.rate,
-                    discovery_timeout=args.discovery_timeout, drain_timeout=args.drain_timeout,
-                    domain_id=args.domain)
+    """Replay and print the account; exit 1 when any frame got no mask, 2 when replay could not start."""
+    try:
+        report = replay(args.bag, args.output, image_topic=args.topic, segmenter=args.segmenter, rate=args.rate,
+                        discovery_timeout=args.discovery_timeout, drain_timeout=args.drain_timeout,
+                        domain_id=args.domain)
+    except (TimeoutError, FileNotFoundError, FileExistsError, ValueError) as error:
+        print(f"moseg replay: error: {error}", file=sys.stderr)
+        return 2
     summary = report.summary()
     print(json.dumps({k: v for k, v in summary.items() if k != "missing_stamps"}, indent=2))
     if report.missing_stamps:
