@@ -104,6 +104,7 @@ class _Builder:
         return box
 
     def jitter(self, scale: float) -> float:
+        """A seeded offset, uniform in [-scale, scale]."""
         return float(self.rng.uniform(-scale, scale))
 
     def car_texture(self) -> Texture:
@@ -113,6 +114,7 @@ class _Builder:
         return paint_car(self.paint_rng, CAR_SIZE, self.box_tile, colour=colour)
 
     def scene(self) -> SynthScene:
+        """The finished scene: camera, street and every box added so far, stamped at 10 Hz."""
         stamps = DEFAULT_START_NS + FRAME_PERIOD_NS * np.arange(self.n_frames, dtype=np.int64)
         return SynthScene(name=self.name, K=kitti_intrinsics(self.width, self.height), width=self.width,
                           height=self.height, poses=self.poses, stamps_ns=stamps, street=self.street,

@@ -138,6 +138,7 @@ class Texture:
 
     @property
     def size(self) -> int:
+        """Side of the square texture image in texels."""
         return int(self.image.shape[0])
 
 
@@ -288,6 +289,7 @@ class SynthScene:
 
     @property
     def n_frames(self) -> int:
+        """Number of frames (camera poses) of the scene."""
         return len(self.poses)
 
     def dynamic_ids(self) -> set[int]:
@@ -295,6 +297,7 @@ class SynthScene:
         return {b.id for b in self.boxes if b.moving().any()}
 
     def object_names(self) -> dict[int, str]:
+        """Box id -> name (e.g. "car_ahead", "parked_car_1")."""
         return {b.id: b.name for b in self.boxes}
 
 
