@@ -19,6 +19,7 @@ from moseg_ros.frontend.flow import DIS_PRESETS, DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker
 from moseg_ros.frontend.window import Window, WindowFrame
+from moseg_ros.io.image import to_gray
 from moseg_ros.render import Masks, render_masks
 
 # epipolar_baseline: one dominant epipolar geometry, per-pixel residuals (core/baseline.py).
@@ -82,13 +83,6 @@ class FrameResult:
     status: str
     dynamic_ids: np.ndarray
     seconds: float
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) uint8 grey from a grey (H, W) or colour (H, W, 3) rgb uint8 frame."""
-    if image.ndim == 2:
-        return image
-    return cv2.cvtColor(image, cv2.COLOR_RGB2GRAY)
 
 
 class Pipeline:
@@ -156,7 +150,8 @@ class Pipeline:
             self.resets += 1
             status = f"reset: {reason}"
         h, w = self._working_size(*size)
-        gray = cv2.resize(to_gray(image), (w, h), interpolation=cv2.INTER_AREA)
+        gray = cv2.resize(to_gray(image, "mono8" if image.ndim == 2 else "rgb8"), (w, h),
+                          interpolation=cv2.INTER_AREA)
         previous, self._previous = self._previous, gray
         self._last_stamp, self._input_size = stamp_ns, size
 

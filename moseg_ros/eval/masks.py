@@ -52,7 +52,8 @@ class MaskScore:
         }
 
 
-def _masks_by_stamp(bag: Path, topic: str) -> dict[int, np.ndarray]:
+def masks_by_stamp(bag: str | Path, topic: str) -> dict[int, np.ndarray]:
+    """Every mask on ``topic`` of ``bag`` as (H, W) bool (non-zero = set), keyed by header stamp (ns)."""
     return {stamp_to_ns(msg.header.stamp): image_to_array(msg) > 0 for _, _, msg in iter_messages(bag, [topic])}
 
 
@@ -64,8 +65,8 @@ def score_bags(truth_bag: str | Path, predicted_bag: str | Path, predicted_topic
         truth_bag: bag holding ``truth_topic`` (mono8, non-zero = moving).
         predicted_bag: bag holding ``predicted_topic`` (mono8, 255 = moving).
     """
-    truth = _masks_by_stamp(Path(truth_bag), truth_topic)
-    predicted = _masks_by_stamp(Path(predicted_bag), predicted_topic)
+    truth = masks_by_stamp(truth_bag, truth_topic)
+    predicted = masks_by_stamp(predicted_bag, predicted_topic)
     stamps = sorted(s for s in truth if s in predicted)
     iou, recall, fpr = [], [], []
     for stamp in stamps:

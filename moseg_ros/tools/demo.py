@@ -21,9 +21,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, score_bags
-from moseg_ros.io.bags import iter_messages, read_images, stamp_to_ns
-from moseg_ros.io.image import image_to_array
+from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
+from moseg_ros.io.bags import read_images
 from moseg_ros.tools.dds import loopback_env
 from moseg_ros.tools.replay import replay
 
@@ -74,8 +73,8 @@ def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) ->
     """Write ``overlay_sheet.png`` (``tiles`` frames, 2 columns) and ``overlay.mp4`` (every frame, 10 fps)."""
     import imageio.v2 as imageio
 
-    predicted = {stamp_to_ns(m.header.stamp): image_to_array(m) > 0 for _, _, m in iter_messages(masks_bag, [MASK_TOPIC])}
-    truth = {stamp_to_ns(m.header.stamp): image_to_array(m) > 0 for _, _, m in iter_messages(bag, [GT_DYNAMIC_TOPIC])}
+    predicted = masks_by_stamp(masks_bag, MASK_TOPIC)
+    truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC)
     frames = []
     for image in read_images(bag):
         rgb = image.rgb()

@@ -16,7 +16,6 @@ from typing import Any
 
 from moseg_ros.io.bags import BagWriter, read_images
 from moseg_ros.io.frames import decode_frame
-from moseg_ros.io.image import array_to_image_fields
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 OUTPUT_PREFIX = "/segmenter"
@@ -45,13 +44,11 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
             status = result.status.split(":")[0]
             counts["statuses"][status] = counts["statuses"].get(status, 0) + 1
             seconds.append(result.seconds)
-            header = image.msg.header
             for name, array, encoding in (("dynamic_mask", result.masks.dynamic, "mono8"),
                                           ("static_mask", result.masks.static, "mono8"),
                                           ("instance_labels", result.masks.instance_labels, "32SC1")):
-                msg = writer.typestore.types["sensor_msgs/msg/Image"](
-                    header=header, **array_to_image_fields(array, encoding))
-                writer.write(f"{OUTPUT_PREFIX}/{name}", "sensor_msgs/msg/Image", msg, image.log_time_ns)
+                writer.write_image(f"{OUTPUT_PREFIX}/{name}", image.stamp_ns, image.frame_id, array, encoding,
+                                   log_time_ns=image.log_time_ns)
             counts["masks_out"] += 1
             if progress:
                 print(f"\r{counts['frames_in']} frames, {result.seconds * 1e3:.0f} ms/frame", end="",
