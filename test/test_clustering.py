@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+import scipy.sparse.linalg
 
 from moseg_ros.core import clustering
 
@@ -27,6 +28,20 @@ def test_large_sparse_problem_uses_the_same_answer():
     a = np.maximum(a, a.T)
     truth = np.repeat(np.arange(3), sizes)
     assert clustering.misclassification_rate(clustering.spectral_clustering(a, 3, rng), truth) == 0.0
+
+
+def test_lanczos_that_does_not_converge_falls_back_to_lapack(monkeypatch):
+    rng = np.random.default_rng(2)
+    sym = clustering.normalized_affinity(_blocks(rng, [200, 150], 1.0, 0.01))
+    factor = rng.normal(size=(350, 2))
+    expected = clustering.top_eigenvectors(sym, 2, factor, 0.1)
+
+    def stalls(*args, **kwargs):
+        raise scipy.sparse.linalg.ArpackNoConvergence("no convergence", np.zeros(0), np.zeros((350, 0)))
+
+    monkeypatch.setattr(scipy.sparse.linalg, "eigsh", stalls)
+    got = clustering.top_eigenvectors(sym, 2, factor, 0.1)
+    np.testing.assert_allclose(np.abs(got.T @ expected), np.eye(2), atol=1e-6)  # same subspace, any sign
 
 
 def test_coregularization_fuses_complementary_views():

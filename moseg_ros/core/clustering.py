@@ -56,9 +56,7 @@ def top_eigenvectors(sym: np.ndarray, k: int, low_rank: np.ndarray | None = None
     """
     n = sym.shape[0]
     if n <= _DENSE_MAX or k >= n - 1:
-        full = sym if low_rank is None else sym + weight * (low_rank @ low_rank.T)
-        _, vec = scipy.linalg.eigh(full, subset_by_index=[n - k, n - 1], driver="evr")
-        return vec[:, ::-1]
+        return _dense_top_eigenvectors(sym, k, low_rank, weight)
     sparse = scipy.sparse.csr_matrix(sym)
     if low_rank is None:
         op = sparse
@@ -67,8 +65,20 @@ def top_eigenvectors(sym: np.ndarray, k: int, low_rank: np.ndarray | None = None
             (n, n), matvec=lambda x: sparse @ x + weight * (low_rank @ (low_rank.T @ x)),
             matmat=lambda x: sparse @ x + weight * (low_rank @ (low_rank.T @ x)), dtype=np.float64)
     v0 = np.full(n, 1.0 / np.sqrt(n))
-    val, vec = scipy.sparse.linalg.eigsh(op, k=k, which="LA", tol=1e-8, v0=v0, ncv=min(n, max(2 * k + 1, 20)))
+    try:
+        val, vec = scipy.sparse.linalg.eigsh(op, k=k, which="LA", tol=1e-8, v0=v0,
+                                             ncv=min(n, max(2 * k + 1, 20)))
+    except scipy.sparse.linalg.ArpackNoConvergence:
+        # Lanczos stalls on clusters of equal eigenvalues (e.g. many components of a graph); LAPACK does not.
+        return _dense_top_eigenvectors(sym, k, low_rank, weight)
     return vec[:, np.argsort(val)[::-1]]
+
+
+def _dense_top_eigenvectors(sym: np.ndarray, k: int, low_rank: np.ndarray | None, weight: float) -> np.ndarray:
+    n = sym.shape[0]
+    full = sym if low_rank is None else sym + weight * (low_rank @ low_rank.T)
+    _, vec = scipy.linalg.eigh(full, subset_by_index=[n - k, n - 1], driver="evr")
+    return vec[:, ::-1]
 
 
 def row_normalize(u: np.ndarray) -> np.ndarray:
