@@ -29,16 +29,15 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, Hi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.core.baseline import BaselineConfig
-from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.io.frames import decode_frame, decode_instances
 from moseg_ros.io.image import image_from_array
-from moseg_ros.pipeline import METHODS, FrameResult, Pipeline, PipelineConfig
+from moseg_ros.pipeline import FLOW_PRESETS, METHODS, FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import debug_overlay
 
 QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
 # String parameters with a closed set of values; checked at start (descriptors cannot express choices).
 CHOICES: dict[str, tuple[str, ...]] = {
-    "image_qos": QOS_CHOICES, "method": METHODS, "flow_preset": tuple(DIS_PRESETS),
+    "image_qos": QOS_CHOICES, "method": METHODS, "flow_preset": FLOW_PRESETS,
 }
 
 
@@ -68,7 +67,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "method": ("epipolar_baseline", _describe("motion decision method", choices=CHOICES["method"])),
     "working_width": (640, _describe("frames are processed at this width (pixels)", low=64, high=4096,
                                      integer=True)),
-    "flow_preset": ("fast", _describe("DIS optical flow preset", choices=CHOICES["flow_preset"])),
+    "flow_preset": ("auto", _describe("DIS optical flow preset (auto: fast for epipolar_baseline, medium for "
+                                      "object_level)", choices=CHOICES["flow_preset"])),
     "mask_margin_px": (6, _describe("dilation of published masks (output pixels)", low=0, high=100,
                                     integer=True)),
     "min_region_area": (60, _describe("smallest moving region kept (working pixels)", low=1, high=100000,
@@ -82,6 +82,8 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     "window_length": (8, _describe("object_level: frames in the sliding window", low=3, high=60, integer=True)),
     "refit_interval": (4, _describe("object_level: frames between refits of the motion models", low=1,
                                     high=60, integer=True)),
+    "ground_contact": (True, _describe("object_level: objects standing on the ground plane are moving when "
+                                       "their foot slides over it")),
     "diagnostics_period_s": (1.0, _describe("period of /diagnostics", low=0.1, high=60.0)),
     "warn_throttle_s": (5.0, _describe("minimum time between repeated warnings", low=0.0, high=600.0)),
 }
@@ -154,7 +156,7 @@ class SegmenterNode(Node):
             mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
             min_persistence=s["min_persistence"],
             instance_min_fraction=s["instance_min_fraction"], window_length=s["window_length"],
-            refit_interval=s["refit_interval"],
+            refit_interval=s["refit_interval"], ground_contact=s["ground_contact"],
             baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
 
     def _input_qos(self) -> QoSProfile:
