@@ -2,6 +2,7 @@
 
 import cv2
 import numpy as np
+import pytest
 
 from moseg_ros.core import ground
 
@@ -76,3 +77,10 @@ def test_one_pair_of_contact_is_not_enough():
     config = ground.GroundConfig()
     scores = ground.contact_scores(labels[None].repeat(2, axis=0), flow[None], np.array([1, 2]), config)
     assert np.isnan(scores).all()  # min_pairs = 2
+
+
+def test_inconsistent_settings_are_refused():
+    with pytest.raises(ValueError, match="ground_rows"):
+        ground.GroundConfig(clearance=3, ground_rows=(3, 6))
+    with pytest.raises(ValueError, match="probe_rows"):
+        ground.GroundConfig(probe_rows=(4, 2))

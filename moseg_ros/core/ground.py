@@ -11,16 +11,21 @@ Per frame pair:
 
 1. H_g is fitted by RANSAC to the background's flow vectors in the bottom part of the image (mostly road for a
    forward-looking camera); a pair whose best plane explains too few of them has no ground.
-2. The foot of an object is every column's lowest object pixel that has background pixels right below it
-   (``clearance`` rows, inside the image): an object cut by the image border or standing behind another object
-   has no foot there.
-3. The object's flow a few rows above its foot (``probe_rows``: just inside, away from the flow's smoothing
-   across the edge) is compared with the ground's flow at the foot, u_g(x) = H_g(x) − x:
-   error e = median |u_obj − u_g|, ground speed s = median |u_g| over the foot.
+2. The foot of an object is its pixels with ``clearance`` background rows right below them, inside the image
+   (in each column, the lowest pixel of the object if ground is seen under it): an object cut by the image
+   border or standing behind another object has no foot there.
+3. The ground's flow at the foot is measured a few rows below it (``ground_rows``) and carried up to the foot
+   with H_g: u_g(x) = u(x + d) + (H_g(x) − x) − (H_g(x + d) − (x + d)), so the homography's fit error stays
+   out and only the small change of the plane's flow over d rows comes from it. The object's flow a few rows
+   above its foot (``probe_rows``: inside the object, away from the flow's smoothing across the edge) is
+   compared with it: error e = median |u_obj − u_g|, ground speed s = median |u_g| over the foot. Feet where
+   the ground moves more than ``max_speed_fraction`` of the image width are not compared (dense flow fails
+   on such displacements, right beside the camera).
 
-Over a window, an object's contact score is median(e) / (relative · median(s) + absolute): above 1 the foot
-slides over the ground by more than flow noise (``absolute`` pixels) and more than a ``relative`` share of the
-ground's own motion (the object's feet need not be exactly on the ground plane), so the object moves.
+Over a window, an object's contact score is median(e) / (relative · median(s) + absolute) over the pairs in
+which it had a foot: above 1 the foot slides over the ground by more than flow noise (``absolute`` pixels) and
+more than a ``relative`` share of the ground's own motion (feet are not exactly on the plane), so the object
+moves. Settings were measured on the synthetic presets (moseg synth-eval) and are the same for every scene.
 """
 
 from __future__ import annotations
@@ -68,6 +73,14 @@ class GroundConfig:
     relative: float = 0.08
     max_speed_fraction: float = 0.04
     absolute: float = 0.4
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.ground_rows[0] < self.ground_rows[1] <= self.clearance + 1:
+            raise ValueError(f"ground_rows {self.ground_rows} must lie within the {self.clearance} clearance rows")
+        if not 0 <= self.probe_rows[0] < self.probe_rows[1]:
+            raise ValueError(f"probe_rows {self.probe_rows} must be increasing rows above the foot")
+        if self.min_pairs < 1 or self.min_columns < 1:
+            raise ValueError("min_pairs and min_columns must be >= 1")
 
 
 def fit_ground_homography(labels: np.ndarray, flow: np.ndarray, config: GroundConfig) -> np.ndarray | None:
