@@ -39,6 +39,31 @@ def test_trajectory_hypotheses_blocks_cover_visible_items():
     assert pure.any() and np.all(r[labels[blocks[0].items] == 1][:, pure].mean(axis=0) > 1e-3)
 
 
+def _pure_share(blocks: list, labels: np.ndarray) -> float:
+    """Share of hypotheses that fit every point of one motion exactly (fitted to a sample of that motion)."""
+    pure = []
+    for b in blocks:
+        lab = labels[b.items]
+        pure.append(np.any([np.all(b.residuals[lab == k] < 1e-9, axis=0) for k in (0, 1)], axis=0))
+    return float(np.concatenate(pure).mean())
+
+
+def test_guided_hypotheses_are_drawn_inside_the_groups():
+    # A small object (10 of 100 points): random 8-point samples are seldom pure, guided ones always are.
+    rng = np.random.default_rng(3)
+    xy, visible, labels = _tracks(rng, 90, 10)
+    random = hypotheses.trajectory_hypotheses(xy, visible, "fundamental", gap=2, n_hypotheses=300, rng=rng)
+    guided = hypotheses.trajectory_hypotheses(xy, visible, "fundamental", gap=2, n_hypotheses=300, rng=rng,
+                                              groups=labels, guided_fraction=1.0)
+    assert _pure_share(random, labels) < 0.6 and _pure_share(guided, labels) == 1.0
+    half = hypotheses.trajectory_hypotheses(xy, visible, "fundamental", gap=2, n_hypotheses=300, rng=rng,
+                                            groups=labels, guided_fraction=0.5)
+    assert _pure_share(random, labels) < _pure_share(half, labels) < 1.0
+    with pytest.raises(ValueError, match="guided_fraction"):
+        hypotheses.trajectory_hypotheses(xy, visible, "fundamental", gap=2, n_hypotheses=10, rng=rng,
+                                         guided_fraction=0.5)
+
+
 @pytest.mark.parametrize("model", ["homography", "affine"])
 def test_other_models_give_blocks(model):
     rng = np.random.default_rng(1)

@@ -80,9 +80,22 @@ def sample_minimal_sets(n_points: int, sample_size: int, n_samples: int, rng: np
         out[repeat] = rng.integers(0, n_points, size=(int(repeat.sum()), sample_size))
 
 
+def _guided_samples(present: np.ndarray, groups: np.ndarray, size: int, n_samples: int,
+                    rng: np.random.Generator) -> np.ndarray:
+    """n_samples minimal samples drawn inside groups (equally many per group with at least 2 × size present
+    members), as indices into the trajectories; (0, size) when no group is large enough."""
+    members = [present[groups[present] == g] for g in np.unique(groups[present])]
+    members = [m for m in members if len(m) >= 2 * size]
+    if not members or n_samples <= 0:
+        return np.zeros((0, size), dtype=np.int64)
+    per_group = -(-n_samples // len(members))
+    drawn = [m[sample_minimal_sets(len(m), size, per_group, rng)] for m in members]
+    return np.concatenate(drawn)[rng.permutation(per_group * len(members))[:n_samples]]
+
+
 def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str, *, gap: int,
-                          n_hypotheses: int, rng: np.random.Generator,
-                          oversample: float = 1.2) -> list[ResidualBlock]:
+                          n_hypotheses: int, rng: np.random.Generator, oversample: float = 1.2,
+                          groups: np.ndarray | None = None, guided_fraction: float = 0.0) -> list[ResidualBlock]:
     """Random minimal-sample hypotheses of one model type for every frame pair (MVC style).
 
     For each pair (m, m + gap), the trajectories visible in both frames are the data; ``n_hypotheses`` models
@@ -109,6 +122,9 @@ def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str
         raise ValueError(f"n_hypotheses must be >= 1, got {n_hypotheses}")
     size = geometry.MINIMAL_SAMPLE[model]
     n_draw = int(np.ceil(oversample * n_hypotheses))
+    if not 0.0 <= guided_fraction <= 1.0 or (guided_fraction > 0 and groups is None):
+        raise ValueError(f"guided_fraction must be in [0, 1] and needs groups, got {guided_fraction}")
+    n_guided = int(round(guided_fraction * n_draw))
     pairs, items, samples = [], [], []
     for m0, m1 in frame_pairs(tracks_xy.shape[1], gap):
         present = np.flatnonzero(visible[:, m0] & visible[:, m1])
@@ -116,7 +132,10 @@ def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str
             continue
         pairs.append((m0, m1))
         items.append(present)
-        samples.append(present[sample_minimal_sets(len(present), size, n_draw, rng)])
+        guided = _guided_samples(present, groups, size, n_guided, rng) if n_guided else np.zeros((0, size), int)
+        random = present[sample_minimal_sets(len(present), size, n_draw - len(guided), rng)]
+        mixed = np.concatenate([guided, random])
+        samples.append(mixed[rng.permutation(len(mixed))] if len(guided) else mixed)  # keep the mix when cut
     if not pairs:
         return []
     first = np.repeat([p[0] for p in pairs], n_draw)[:, None]

@@ -6,9 +6,9 @@ matching of clusters to the labels (``GtLabel``); the number of motions is given
 --estimate-k). The method is moseg_ros.core.segment.segment_trajectories with one fixed setting for every clip
 (TrajectoryConfig's defaults). DIR holds Seq*_Tracks.mat files, directly or under DIR/Data/.
 
-Measured on the 22 clips (views F,H, 5 seeds, 2 processes): K given 6.68 % mean (median 1.61 %), about 7.5 s
-per pass over the clips; K estimated (cluster-conductance rule, TrajectoryConfig.max_conductance) 7.49 % mean
-(sd over seeds 1.02, median 3.80 %), 14.5 s per pass.
+Measured on the 22 clips (views F,H, 2 processes): K given 6.30 % mean over seeds 0-4 (median 0.84 %), 6.82 %
+over seeds 0-9, 8.1 s per pass over the clips; K estimated (cluster-conductance rule,
+TrajectoryConfig.max_conductance) 7.49 % over seeds 0-4 (median 3.80 %), 8.18 % over seeds 0-9, 7.1 s per pass.
 """
 
 from __future__ import annotations
