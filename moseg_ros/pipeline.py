@@ -27,7 +27,7 @@ from moseg_ros.render import Masks, render_masks
 #   it needs an instance map with every frame and falls back to the baseline for frames without one.
 METHODS = ("epipolar_baseline", "object_level")
 # auto: fast for epipolar_baseline; medium for object_level, whose ground-contact test compares flows of a
-# pixel or two (measured on the synthetic presets: 149 of 208 moving object-frames flagged with medium, 87 with
+# pixel or two (measured on the synthetic presets: 152 of 208 moving object-frames flagged with medium, 91 with
 # fast; see core/ground.py).
 FLOW_PRESETS = ("auto", *DIS_PRESETS)
 

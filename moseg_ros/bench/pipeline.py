@@ -15,13 +15,17 @@ from threadpoolctl import threadpool_limits
 
 from moseg_ros.io.bags import read_images
 from moseg_ros.io.frames import decode_frame
-from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.pipeline import FLOW_PRESETS, METHODS, Pipeline, PipelineConfig
 
 
-def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> dict[str, float]:
-    """Run the pipeline over ``frames`` (10 Hz stamps) and return per-frame timing in milliseconds."""
+def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig(),
+                   instances: list[np.ndarray] | None = None) -> dict[str, float]:
+    """Run the pipeline over ``frames`` (10 Hz stamps; with an instance map per frame if given) and return
+    per-frame timing in milliseconds."""
     pipeline = Pipeline(config)
-    seconds = [pipeline.process(frame, i * 100_000_000).seconds for i, frame in enumerate(frames)]
+    maps = instances if instances is not None else [None] * len(frames)
+    seconds = [pipeline.process(frame, i * 100_000_000, labels).seconds
+               for i, (frame, labels) in enumerate(zip(frames, maps))]
     ms = np.array(seconds[1:]) * 1e3  # the first frame only fills the window
     return {"frames": len(ms), "width": int(frames[0].shape[1]), "height": int(frames[0].shape[0]),
             "ms_mean": float(ms.mean()), "ms_p50": float(np.percentile(ms, 50)),
@@ -34,18 +38,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", type=Path, nargs="?", help="bag to read frames from (default: synthetic street)")
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--working-width", type=int, default=PipelineConfig.working_width)
-    parser.add_argument("--flow-preset", default=PipelineConfig.flow_preset)
+    parser.add_argument("--flow-preset", choices=FLOW_PRESETS, default=PipelineConfig.flow_preset)
+    parser.add_argument("--method", choices=METHODS, default=PipelineConfig.method,
+                        help="object_level runs on the synthetic street's ground-truth instance maps (no bag)")
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the timing as JSON."""
+    instances = None
     if args.bag is None:
         from moseg_ros.synth.scenarios import render_sequence
 
-        frames = [f.rgb for f in render_sequence("default", n_frames=args.frames).frames]
+        sequence = render_sequence("default", n_frames=args.frames).frames
+        frames = [f.rgb for f in sequence]
+        if args.method == "object_level":
+            instances = [f.instances for f in sequence]
+    elif args.method == "object_level":
+        print("moseg bench pipeline: --method object_level needs instance maps: run it without a bag")
+        return 2
     else:
         frames = [decode_frame(image.msg) for image, _ in zip(read_images(args.bag), range(args.frames))]
-    config = PipelineConfig(working_width=args.working_width, flow_preset=args.flow_preset)
+    config = PipelineConfig(method=args.method, working_width=args.working_width, flow_preset=args.flow_preset)
     with threadpool_limits(1):
-        print(json.dumps(bench_pipeline(frames, config), indent=2))
+        result = bench_pipeline(frames, config, instances)
+    print(json.dumps({"method": args.method, "flow_preset": config.dis_preset(), **result}, indent=2))
     return 0

@@ -60,7 +60,7 @@ class GroundConfig:
     """
 
     fit_rows: float = 1.0 / 3.0
-    grid_step: int = 2
+    grid_step: int = 4
     ransac_px: float = 1.5
     ransac_fraction: float = 0.1
     min_vectors: int = 50
