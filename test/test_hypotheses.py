@@ -125,3 +125,20 @@ def test_bad_input_raises():
                                              gap=1)
     with pytest.raises(ValueError, match="frame gap"):
         hypotheses.frame_pairs(5, 0)
+
+
+def test_members_are_fitted_as_with_zero_weights_on_everything_else():
+    # The bucketed fit of the object-level models equals the eight-point fit over all points with the
+    # non-members weighted 0 (up to the sign of F).
+    from moseg_ros.core import geometry
+
+    rng = np.random.default_rng(4)
+    xy, visible, labels = _tracks(rng, 200, 30)
+    x1, x2 = xy[None, :, 0], xy[None, :, 2]
+    member = np.stack([labels == 0, labels == 1, np.arange(230) < 5])  # the last set is too small
+    fitted, valid = hypotheses._fit_members(x1, x2, member, 8)
+    reference, reference_valid = geometry.fundamental_eight_point(np.repeat(x1, 3, 0), np.repeat(x2, 3, 0),
+                                                                  member.astype(float))
+    assert valid.tolist() == [True, True, False] and reference_valid[:2].all()
+    for f, ref in zip(fitted[:2], reference[:2]):
+        np.testing.assert_allclose(f * np.sign(np.vdot(f, ref)), ref, atol=1e-8)

@@ -191,6 +191,37 @@ def _blocks_from_pairs(residuals: np.ndarray, item_present: np.ndarray, model_va
     return blocks
 
 
+def _fit_members(x1: np.ndarray, x2: np.ndarray, member: np.ndarray,
+                 min_points: int) -> tuple[np.ndarray, np.ndarray]:
+    """Eight-point F of every (pair, object) set from its members only.
+
+    Sets are fitted in buckets of similar size (padded with zero-weight points to the bucket's largest), so
+    the background's thousands of points do not make every small object's system as tall.
+
+    Args:
+        x1, x2: (P, N, 2) positions in the two frames of each pair; member: (P·K, N) bool, row p·K + k = the
+            points of object k in pair p.
+
+    Returns:
+        F (P·K, 3, 3) and valid (P·K,); sets of fewer than min_points points are invalid (F = 0).
+    """
+    n_sets, n_points = member.shape
+    n_objects = n_sets // x1.shape[0]
+    counts = member.sum(axis=1)
+    F, valid = np.zeros((n_sets, 3, 3)), np.zeros(n_sets, dtype=bool)
+    order = np.argsort(~member, axis=1, kind="stable")  # each row's members first
+    bucket = np.ceil(np.log2(np.maximum(counts, 1))).astype(int)
+    for b in np.unique(bucket[counts >= min_points]):
+        rows = np.flatnonzero((bucket == b) & (counts >= min_points))
+        width = int(counts[rows].max())
+        idx = order[rows, :width]
+        pair = rows // n_objects
+        weights = np.take_along_axis(member[rows], idx, axis=1).astype(np.float64)
+        F[rows], valid[rows] = geometry.fundamental_eight_point(x1[pair[:, None], idx], x2[pair[:, None], idx],
+                                                                weights)
+    return F, valid
+
+
 def object_epipolar_residuals(tracks_xy: np.ndarray, visible: np.ndarray, track_object: np.ndarray,
                               n_objects: int, *, gap: int, min_points: int = 8) -> list[ResidualBlock]:
     """Object-level epipolar hypotheses: one eight-point F per object per pair (m, m + gap).
@@ -222,12 +253,9 @@ def object_epipolar_residuals(tracks_xy: np.ndarray, visible: np.ndarray, track_
     both = (visible[:, m0] & visible[:, m1]).T  # (P, N)
     member = both[:, None, :] & (track_object[None, None, :] == np.arange(n_objects)[None, :, None])
     n_pairs = len(pairs)
-    w = member.reshape(n_pairs * n_objects, -1).astype(np.float64)
-    rep = np.repeat(np.arange(n_pairs), n_objects)
     x1s = np.where(both[..., None], x1, 0.0)
     x2s = np.where(both[..., None], x2, 0.0)
-    F, valid = geometry.fundamental_eight_point(x1s[rep], x2s[rep], w)
-    valid &= w.sum(axis=1) >= min_points
+    F, valid = _fit_members(x1s, x2s, member.reshape(n_pairs * n_objects, -1), max(min_points, 8))
     F = F.reshape(n_pairs, n_objects, 3, 3)
     errors = geometry.sampson_distance(F, x1s, x2s)  # (P, K, N)
     medians = _median_per_object(errors, both, track_object, n_objects)
