@@ -22,7 +22,7 @@ def plane_flow(homography: np.ndarray, height: int = HEIGHT, width: int = WIDTH)
 def street_pair() -> tuple[np.ndarray, np.ndarray]:
     """Labels and flow of one pair: ground everywhere; object 1 static (every pixel moves like the ground at
     its foot, as an upright face does), object 2 keeps its distance (zero flow, like a car ahead at the
-    camera's speed), object 3 is cut by the bottom border, object 4 is 4 columns wide."""
+    camera's speed), object 3 is cut by the bottom border, object 4 is 3 columns wide."""
     labels = np.zeros((HEIGHT, WIDTH), dtype=np.int32)
     flow = plane_flow(GROUND_H)
     labels[60:90, 20:60] = 1
@@ -30,8 +30,8 @@ def street_pair() -> tuple[np.ndarray, np.ndarray]:
     labels[50:80, 100:140] = 2
     flow[50:80, 100:140] = 0.0
     labels[95:, 160:190] = 3
-    labels[60:85, 70:74] = 4
-    flow[60:85, 70:74] = flow[85, 70:74]
+    labels[60:85, 70:73] = 4
+    flow[60:85, 70:73] = flow[85, 70:73]
     return labels, flow
 
 

@@ -297,6 +297,14 @@ def test_object_level_node_flags_the_moving_cars_of_the_busy_street(ros_domain, 
         stop_segmenter(process)
 
 
+def test_replay_refuses_an_instances_topic_the_bag_does_not_have(textured_bag, tmp_path):
+    from moseg_ros.tools.replay import replay
+
+    with pytest.raises(ValueError, match="no topic /gt/instances"):
+        replay(textured_bag, tmp_path / "out", instances_topic="/gt/instances")
+    assert not (tmp_path / "out").exists()
+
+
 def test_replay_without_a_node_times_out_with_a_clear_error(textured_bag, ros_domain, tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "moseg_ros.cli", "replay", str(textured_bag), "-o", str(tmp_path / "out"),

@@ -68,7 +68,7 @@ class GroundConfig:
     clearance: int = 5
     probe_rows: tuple[int, int] = (2, 6)
     ground_rows: tuple[int, int] = (3, 6)
-    min_columns: int = 8
+    min_columns: int = 4
     min_pairs: int = 2
     relative: float = 0.08
     max_speed_fraction: float = 0.04

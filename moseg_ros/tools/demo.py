@@ -21,8 +21,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
+from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, GT_INSTANCES_TOPIC, masks_by_stamp, score_bags
 from moseg_ros.io.bags import read_images
+from moseg_ros.pipeline import METHODS
 from moseg_ros.tools.dds import loopback_env
 from moseg_ros.tools.replay import replay
 
@@ -103,8 +104,13 @@ def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[
 
 
 def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int = 0, frames: int = 60,
-             domain_id: int = 42, regenerate: bool = False, rate: float = 1.0) -> dict[str, Any]:
-    """Render (if needed), replay through the node, score and picture; returns the summary written."""
+             domain_id: int = 42, regenerate: bool = False, rate: float = 1.0,
+             method: str = "epipolar_baseline") -> dict[str, Any]:
+    """Render (if needed), replay through the node, score and picture; returns the summary written.
+
+    With method object_level the node runs with use_instances:=true and the bag's exact instance maps
+    (/gt/instances) stand in for an upstream instance segmenter.
+    """
     out_dir.mkdir(parents=True, exist_ok=True)
     if regenerate or not bag.exists():
         shutil.rmtree(bag, ignore_errors=True)
@@ -112,14 +118,18 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
         make_demo_bag(bag, scenario=scenario, seed=seed, frames=frames)
     masks_bag = out_dir / "masks"
     shutil.rmtree(masks_bag, ignore_errors=True)
-    node = start_segmenter(domain_id, out_dir / "segmenter.log")
+    object_level = method == "object_level"
+    params = ["method:=object_level", "use_instances:=true"] if object_level else []
+    node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
-        report = replay(bag, masks_bag, domain_id=domain_id, rate=rate)
+        report = replay(bag, masks_bag, domain_id=domain_id, rate=rate,
+                        instances_topic=GT_INSTANCES_TOPIC if object_level else None)
     finally:
         exit_code = stop_segmenter(node)
     score = score_bags(bag, masks_bag, MASK_TOPIC)
     summary = {**report.summary(), **score.summary(), "node_exit_code": exit_code, "bag": str(bag),
-               "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate}
+               "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate,
+               "method": method}
     summary.update(write_pictures(bag, masks_bag, out_dir))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
@@ -153,12 +163,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS domain id of the demo (default 42, or $MOSEG_DEMO_DOMAIN)")
     parser.add_argument("--regenerate", action="store_true", help="render the bag even if it exists")
     parser.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0 = 10 Hz)")
+    parser.add_argument("--method", choices=METHODS, default="epipolar_baseline",
+                        help="object_level: the node gets the bag's exact instance maps as upstream instances")
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the demo; exit 1 unless every frame got its mask and the node exited cleanly."""
     summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
-                       domain_id=args.domain, regenerate=args.regenerate, rate=args.rate)
+                       domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method)
     print_table(summary)
     print(f"summary: {args.out / 'summary.json'}")
     ok = summary["frames_in"] == summary["masks_out"] and summary["node_exit_code"] == 0

@@ -13,7 +13,7 @@ import json
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -97,8 +97,10 @@ class _Recorder:
         self.lock = threading.Lock()
         self.received: dict[int, float] = {}
         self.frame_ids: dict[int, str] = {}
+        self.stamps: dict[str, set[int]] = {}
         self.diagnostics: dict[str, str] = {}
         self.topics = {f"{segmenter}/{name}": msgtype for name, msgtype in OUTPUTS.items()}
+        self.stamps = {topic: set() for topic in self.topics}
         reliable = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
         for topic in self.topics:
             node.create_subscription(Image, topic, lambda msg, t=topic: self._on_output(t, msg), reliable,
@@ -111,13 +113,19 @@ class _Recorder:
         from sensor_msgs.msg import Image
 
         now = time.monotonic()
+        header = deserialize_message(raw, Image).header
+        stamp = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
         with self.lock:
             self.writer.write_serialized(topic, self.topics[topic], raw, time.time_ns())
+            self.stamps[topic].add(stamp)
             if topic == self.mask_topic:
-                header = deserialize_message(raw, Image).header
-                stamp = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
                 self.received.setdefault(stamp, now)
                 self.frame_ids[stamp] = header.frame_id
+
+    def has_all_outputs(self, stamps: Iterable[int]) -> bool:
+        """Every output topic has a message for each of ``stamps`` (the node publishes them one by one)."""
+        with self.lock:
+            return all(set(stamps) <= seen for seen in self.stamps.values())
 
     def _on_diagnostics(self, msg: Any) -> None:
         from rclpy.serialization import serialize_message
@@ -139,7 +147,7 @@ def _wait(condition: Any, timeout: float, what: str) -> None:
 
 def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = None, segmenter: str = "/segmenter",
            rate: float = 1.0, discovery_timeout: float = 30.0, drain_timeout: float = 10.0,
-           domain_id: int | None = None) -> ReplayReport:
+           domain_id: int | None = None, instances_topic: str | None = None) -> ReplayReport:
     """Publish ``bag``'s images (and camera_info) to a running segmenter and record its outputs.
 
     Args:
@@ -151,6 +159,8 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
         discovery_timeout: seconds to wait for the node to appear.
         drain_timeout: seconds to wait for outstanding masks after the last frame.
         domain_id: ROS domain; when given, the loopback DDS profile is applied to this process first.
+        instances_topic: a bag topic of instance-id images to publish as ``instances`` (for a node run with
+            use_instances:=true), e.g. the synthetic bags' /gt/instances.
 
     Returns:
         The per-frame account of what came back.
@@ -167,6 +177,10 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
     info_topic = topic.rsplit("/", 1)[0] + "/camera_info"
     if available.get(info_topic) == CAMERA_INFO_TYPE:
         topics[info_topic] = CAMERA_INFO_TYPE
+    if instances_topic is not None:
+        if instances_topic not in available:
+            raise ValueError(f"{bag} has no topic {instances_topic}; topics: {', '.join(sorted(available))}")
+        topics[instances_topic] = available[instances_topic]
     if domain_id is not None:
         use_loopback(domain_id)
 
@@ -183,7 +197,8 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
         recorder = _Recorder(node, writer, segmenter)
         try:
             reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
-            publishers = {name: node.create_publisher(get_message(msgtype), name, reliable)
+            publishers = {name: node.create_publisher(get_message(msgtype),
+                                                      "instances" if name == instances_topic else name, reliable)
                           for name, msgtype in topics.items()}
             spinner.start()
             _wait(lambda: publishers[topic].get_subscription_count() > 0
@@ -192,8 +207,7 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
             time.sleep(0.5)  # let the remaining endpoints of both participants match
             _publish_all(_rclpy_messages(Path(bag), topics), publishers, topic, topics, writer, recorder, rate,
                          sent, report)
-            _wait(lambda: all(stamp in recorder.received for stamp in sent), drain_timeout, "the last masks") \
-                if sent else None
+            _wait(lambda: recorder.has_all_outputs(list(sent)), drain_timeout, "the last masks") if sent else None
         except TimeoutError as error:
             if not sent:
                 raise
@@ -246,6 +260,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", type=Path, help="input bag: rosbag2 folder, .mcap file or ROS 1 .bag")
     parser.add_argument("-o", "--output", type=Path, required=True, help="output rosbag2 MCAP folder")
     parser.add_argument("--topic", help="image topic to replay (default: the bag's one camera image topic)")
+    parser.add_argument("--instances", metavar="TOPIC",
+                        help="also publish this bag topic of instance-id images as `instances`")
     parser.add_argument("--segmenter", default="/segmenter", help="fully qualified name of the running node")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
     parser.add_argument("--domain", type=int, default=None,
@@ -259,7 +275,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         report = replay(args.bag, args.output, image_topic=args.topic, segmenter=args.segmenter, rate=args.rate,
                         discovery_timeout=args.discovery_timeout, drain_timeout=args.drain_timeout,
-                        domain_id=args.domain)
+                        domain_id=args.domain, instances_topic=args.instances)
     except (TimeoutError, FileNotFoundError, FileExistsError, ValueError) as error:
         print(f"moseg replay: error: {error}", file=sys.stderr)
         return 2
