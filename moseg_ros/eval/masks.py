@@ -11,7 +11,6 @@ from moseg_ros.io.bags import iter_messages, stamp_to_ns
 from moseg_ros.io.image import image_to_array
 
 GT_DYNAMIC_TOPIC = "/gt/dynamic_mask"
-GT_INSTANCES_TOPIC = "/gt/instances"
 
 
 def mask_iou(predicted: np.ndarray, truth: np.ndarray) -> float:

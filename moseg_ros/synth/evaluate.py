@@ -18,15 +18,16 @@ import numpy as np
 
 from moseg_ros.pipeline import FLOW_PRESETS, METHODS, Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, render_sequence
+from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
 
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
                 min_area: int = 60, skip: int = 3) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
-    The height keeps KITTI's 1242:375 aspect ratio.
+    The height keeps KITTI's aspect ratio.
     """
-    height = int(round(width * 375 / 1242))
+    height = int(round(width * KITTI_HEIGHT / KITTI_WIDTH))
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
     pipeline = Pipeline(config)
     flagged: Counter[int] = Counter()
@@ -60,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"comma-separated presets (default: all: {', '.join(PRESETS)})")
     parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 of every preset (default 2)")
     parser.add_argument("--frames", type=int, default=16)
-    parser.add_argument("--width", type=int, default=621, help="image width; height keeps 1242:375")
+    parser.add_argument("--width", type=int, default=621, help="image width; the height keeps KITTI's aspect ratio")
     parser.add_argument("--method", choices=METHODS, default="object_level")
     parser.add_argument("--flow-preset", choices=FLOW_PRESETS, default="auto")
     parser.add_argument("--no-ground-contact", action="store_true", help="the paper's clusters alone")

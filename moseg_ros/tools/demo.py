@@ -21,9 +21,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, GT_INSTANCES_TOPIC, masks_by_stamp, score_bags
+from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
 from moseg_ros.io.bags import read_images
 from moseg_ros.pipeline import METHODS
+from moseg_ros.synth.scenarios import build_scene
+from moseg_ros.synth.street import GT_TOPICS, render_frames, write_frames
 from moseg_ros.tools.dds import loopback_env
 from moseg_ros.tools.replay import replay
 
@@ -96,9 +98,6 @@ def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) ->
 
 def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[str, int]:
     """Render the synthetic street scenario into ``path`` (rosbag2 MCAP), one frame at a time."""
-    from moseg_ros.synth.scenarios import build_scene
-    from moseg_ros.synth.street import render_frames, write_frames
-
     scene = build_scene(scenario, seed=seed, n_frames=frames)
     return write_frames(render_frames(scene), scene.K, scene.width, scene.height, path)
 
@@ -123,7 +122,7 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
     node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
         report = replay(bag, masks_bag, domain_id=domain_id, rate=rate,
-                        instances_topic=GT_INSTANCES_TOPIC if object_level else None)
+                        instances_topic=GT_TOPICS["instances"] if object_level else None)
     finally:
         exit_code = stop_segmenter(node)
     score = score_bags(bag, masks_bag, MASK_TOPIC)
