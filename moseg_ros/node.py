@@ -112,6 +112,7 @@ class SegmenterNode(Node):
         self.pipeline = Pipeline(self._pipeline_config())
 
         self.counters = _Counters()
+        self.statuses: collections.Counter[str] = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=500)
         self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
         self._departures: collections.deque[float] = collections.deque(maxlen=100)
@@ -244,9 +245,13 @@ class SegmenterNode(Node):
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         result = self.pipeline.process(frame, stamp_ns, instances)
-        if result.status.startswith("reset"):
+        kind = result.status.split(":")[0]
+        self.statuses[kind] += 1
+        if kind == "reset":
             self.counters.resets += 1
             self._warn("reset", f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
+        elif kind in ("too_small", "failed"):
+            self._warn(kind, f"frame {_stamp_text(msg)} {frame.shape[:2]} got an empty mask: {result.status}")
         self._publish(msg.header, frame, result)
         done = time.monotonic()
         self._latencies.append(done - arrived)
@@ -280,6 +285,7 @@ class SegmenterNode(Node):
             "latency_ms_p95": f"{np.percentile(latencies, 95):.1f}",
             "queued": len(self._queue),
             "calibrated": self.camera_matrix is not None,
+            **{f"status_{kind}": count for kind, count in sorted(self.statuses.items())},
         }
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray(status=[status])

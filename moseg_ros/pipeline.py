@@ -2,7 +2,10 @@
 
 ``Pipeline.process`` takes one decoded frame (and optionally an upstream instance map with the same stamp)
 and always returns masks for that frame. The first frame of a stream, or the first after a reset, has no
-motion evidence yet and gets an empty dynamic mask with status ``warmup``.
+motion evidence yet and gets an empty dynamic mask with status ``warmup``. A frame smaller than
+``MIN_WORKING_SIDE`` on either side gets an empty mask with status ``too_small`` before any OpenCV call (DIS
+flow crashes the process on working heights below 32 px, OpenCV 5.0), and a frame whose method raises gets an
+empty mask with status ``failed: <reason>``; both restart the window.
 """
 
 from __future__ import annotations
@@ -30,6 +33,9 @@ METHODS = ("epipolar_baseline", "object_level")
 # pixel or two (measured on the synthetic presets: 152 of 208 moving object-frames flagged with medium, 91 with
 # fast; see core/ground.py).
 FLOW_PRESETS = ("auto", *DIS_PRESETS)
+# Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
+# 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
+MIN_WORKING_SIDE = 32
 
 
 @dataclass(frozen=True)
@@ -84,7 +90,9 @@ class FrameResult:
         stamp_ns: the input's stamp, unchanged.
         masks: masks at the input size.
         status: ``ok``, ``warmup`` (no previous frame yet), ``no_geometry`` (camera too still or RANSAC
-            failed: nothing flagged), or ``reset: <reason>`` (window cleared before this frame).
+            failed: nothing flagged), ``reset: <reason>`` (window cleared before this frame), ``too_small``
+            (a side below MIN_WORKING_SIDE: empty mask) or ``failed: <reason>`` (the method raised: empty
+            mask, window cleared).
         dynamic_ids: (D,) ids of the instances flagged as moving.
         seconds: processing time of this frame.
     """
@@ -128,8 +136,10 @@ class Pipeline:
         self._since_refit = 0
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
-        scale = min(1.0, self.config.working_width / width)
-        return max(8, round(height * scale)), max(8, round(width * scale))
+        # Downscale to working_width, but never below MIN_WORKING_SIDE on a side that is at least that long.
+        scale = max(self.config.working_width / width, MIN_WORKING_SIDE / height, MIN_WORKING_SIDE / width)
+        scale = min(1.0, scale)
+        return round(height * scale), round(width * scale)
 
     def _reset_reason(self, size: tuple[int, int], stamp_ns: int) -> str | None:
         if self._input_size is not None and size != self._input_size:
@@ -156,11 +166,27 @@ class Pipeline:
         if instances is not None and instances.shape != size:
             raise ValueError(f"instance map {instances.shape} does not match the image {size}")
         status = "ok"
+        if min(size) < MIN_WORKING_SIDE:
+            self.reset()
+            return self._empty(stamp_ns, size, "too_small", start)
         reason = self._reset_reason(size, stamp_ns)
         if reason is not None:
             self.reset()
             self.resets += 1
             status = f"reset: {reason}"
+        try:
+            return self._segment(image, stamp_ns, instances, status, start)
+        except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
+            self.reset()
+            return self._empty(stamp_ns, size, f"failed: {type(error).__name__}: {error}".splitlines()[0], start)
+
+    def _empty(self, stamp_ns: int, size: tuple[int, int], status: str, start: float) -> FrameResult:
+        masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)
+        return FrameResult(stamp_ns, masks, status, np.zeros(0, dtype=np.int32), time.perf_counter() - start)
+
+    def _segment(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None, status: str,
+                 start: float) -> FrameResult:
+        size = image.shape[:2]
         h, w = self._working_size(*size)
         gray = cv2.resize(to_gray(image, "mono8" if image.ndim == 2 else "rgb8"), (w, h),
                           interpolation=cv2.INTER_AREA)

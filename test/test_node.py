@@ -160,6 +160,30 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
         probe.close()
 
 
+def test_frames_too_small_for_the_method_get_empty_masks_and_are_counted(segmenter, ros_domain, monkeypatch):
+    """Two mono8 64x8 frames and three rgb8 640x31 ones took the node down (SIGSEGV inside DIS flow)."""
+    process, log = segmenter
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.wait_for_node(), "node not discovered"
+        rng = np.random.default_rng(0)
+        second = 1_000_000_000
+        small = [_image(rng.integers(0, 255, (8, 64), dtype=np.uint8), (1 + i) * second, "mono8") for i in range(2)]
+        small += [_image(rng.integers(0, 255, (31, 640, 3), dtype=np.uint8), (3 + i) * second) for i in range(3)]
+        for msg in small:
+            probe.send_and_wait(msg, expect_mask=True)
+        for i, frame in enumerate(textured_frames(2)):
+            probe.send_and_wait(_image(frame, (10 + i) * second), expect_mask=True)
+        assert [(m.height, m.width) for m in probe.masks] == [(8, 64)] * 2 + [(31, 640)] * 3 + [(188, 621)] * 2
+        assert all(not any(m.data) for m in probe.masks[:5])
+        assert probe.spin_until(lambda: probe.diagnostics.get("frames_out") == "7", 5), probe.diagnostics
+        assert probe.diagnostics["status_too_small"] == "5" and probe.diagnostics["failures"] == "0"
+        assert process.poll() is None, log.read_text()
+        assert "got an empty mask: too_small" in log.read_text()
+    finally:
+        probe.close()
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_clean_exit_on_signal(ros_domain, tmp_path, sig):
     process = start_segmenter(ros_domain, tmp_path / "log")

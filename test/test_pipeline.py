@@ -134,3 +134,41 @@ def test_object_level_survives_a_frame_without_instances():
         instances = None if i == 5 else np.where(block_truth(i), 7, 0).astype(np.int32)
         statuses.append(pipeline.process(frame, i * STEP, instances).status)
     assert statuses == ["warmup"] + ["ok"] * 4 + ["no_instances"] + ["ok"] * 4
+
+
+@pytest.mark.parametrize("shape", [(8, 64), (31, 640), (16, 128), (30, 300), (1, 1), (15, 15), (1, 640), (640, 1),
+                                   (31, 31, 3)])
+def test_frames_below_the_minimum_working_size_get_an_empty_mask(shape):
+    """Two or three such frames crashed DIS flow (SIGSEGV) or raised in resize; now each gets its empty mask."""
+    pipeline = Pipeline()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        result = pipeline.process(rng.integers(0, 255, shape, dtype=np.uint8), i * STEP)
+        assert result.status == "too_small"
+        assert result.masks.dynamic.shape == shape[:2] and not result.masks.dynamic.any()
+
+
+def test_a_thin_but_long_enough_frame_is_processed_at_the_minimum_height():
+    """1242x40 would be 640x21 at the working width, a height DIS crashes on: it is scaled to 32 rows instead."""
+    pipeline = Pipeline()
+    rng = np.random.default_rng(0)
+    statuses = [pipeline.process(rng.integers(0, 255, (40, 1242), dtype=np.uint8), i * STEP).status
+                for i in range(3)]
+    assert statuses[0] == "warmup" and "too_small" not in statuses
+
+
+def test_a_method_that_raises_gives_an_empty_mask_with_the_reason_and_restarts_the_window(monkeypatch):
+    pipeline = Pipeline()
+    frames = textured_frames(4)
+    pipeline.process(frames[0], 0)
+    pipeline.process(frames[1], STEP)
+
+    def broken(*args, **kwargs):
+        raise ValueError("no model")
+
+    monkeypatch.setattr(pipeline, "_decide", broken)
+    result = pipeline.process(frames[2], 2 * STEP)
+    assert result.status == "failed: ValueError: no model"
+    assert not result.masks.dynamic.any() and result.masks.dynamic.shape == frames[2].shape[:2]
+    monkeypatch.undo()
+    assert pipeline.process(frames[3], 3 * STEP).status == "warmup"  # the window restarted
