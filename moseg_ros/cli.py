@@ -27,6 +27,8 @@ GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
         "kt3dmoseg": ("moseg_ros.eval.kt3dmoseg", "KT3DMoSeg trajectory-level motion segmentation benchmark"),
         "kt3dmoseg-masks": ("moseg_ros.eval.kt3dmoseg_masks",
                             "the node's dynamic masks on real KT3DMoSeg frames, scored at labelled points"),
+        "davis": ("moseg_ros.eval.davis",
+                  "the node's dynamic masks on DAVIS-2016 clips: J, pixel precision and recall"),
     }),
     "bench": ("speed benchmarks that print numbers", {
         "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),

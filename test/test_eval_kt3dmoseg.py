@@ -76,4 +76,23 @@ def test_views_option_and_missing_data(tmp_path, capsys):
     with pytest.raises(argparse.ArgumentTypeError, match="unknown view"):
         kt3dmoseg.parse_views("F,Q")
     assert kt3dmoseg.run(_args(dir=tmp_path)) == 2
-    assert "no Seq*_Tracks.mat" in capsys.readouterr().out
+    assert f"no KT3DMoSeg clip files (*.mat with a Data struct) under {tmp_path}" in capsys.readouterr().out
+
+
+def test_clip_files_of_any_name_and_other_mat_files_passed_over(tmp_path, capsys):
+    data = _data_dir()
+    (tmp_path / "Data").mkdir()
+    (tmp_path / "Data" / "two motions.mat").symlink_to(data / "Seq013_Clip01_Tracks.mat")
+    (tmp_path / "Data" / "SeqList.mat").symlink_to(data / "SeqList.mat")  # a cell array, not a clip
+    (tmp_path / "Data" / "notes.mat").write_text("not a MATLAB file")
+    assert kt3dmoseg.find_clips(tmp_path) == [tmp_path / "Data" / "two motions.mat"]
+    assert kt3dmoseg.load_clip(tmp_path / "Data" / "two motions.mat").name == "two motions"
+    out = tmp_path / "r.json"
+    assert kt3dmoseg.run(_args(dir=tmp_path, json=out, jobs=1)) == 0
+    assert [r["clip"] for r in json.loads(out.read_text())["rows"]] == ["two motions"]
+    assert "two motions" in capsys.readouterr().out
+
+
+def test_real_data_folder_holds_22_clips_besides_seqlist():
+    files = kt3dmoseg.find_clips(_data_dir().parent)
+    assert len(files) == 22 and all(f.name.endswith("_Tracks.mat") for f in files)

@@ -4,25 +4,30 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
+
 from conftest import shared_data
 from moseg_ros.cli import main as moseg
+from moseg_ros.eval.kt3dmoseg_masks import ClipMaskScore, object_frame_detections, pooled
 
 
-def _subset(tmp_path, clips_with_frames, clips_without_frames=()):
-    """A KT3DMoSeg-layout folder with a few clips (symlinks into ../shared/data)."""
+def _subset(tmp_path, clips_with_frames, clips_without_frames=(), rename=None):
+    """A KT3DMoSeg-layout folder with a few clips (symlinks into ../shared/data), optionally renamed."""
+    rename = rename or {}
     source = shared_data("kt3dmoseg")
     (tmp_path / "Data").mkdir(parents=True)
     (tmp_path / "OriginalSequences").mkdir()
     for clip in (*clips_with_frames, *clips_without_frames):
-        (tmp_path / "Data" / f"{clip}_Tracks.mat").symlink_to(source / "Data" / f"{clip}_Tracks.mat")
+        (tmp_path / "Data" / f"{rename.get(clip, clip)}.mat").symlink_to(source / "Data" / f"{clip}_Tracks.mat")
     for clip in clips_with_frames:
-        (tmp_path / "OriginalSequences" / clip).symlink_to(source / "OriginalSequences" / clip)
+        (tmp_path / "OriginalSequences" / rename.get(clip, clip)).symlink_to(source / "OriginalSequences" / clip)
     return tmp_path
 
 
 def test_scores_real_frames_at_labelled_points(tmp_path, capsys):
     """Seq005_Clip02 (a car and a cyclist crossing a residential street). Measured with the shipped settings:
-    38 % of moving-point observations flagged, 0.5 % of static ones."""
+    38 % of moving-point observations flagged, 0.5 % of static ones, 18 of the 38 object-frames detected."""
     root = _subset(tmp_path / "kt", ["Seq005_Clip02"], ["Seq020_Clip01"])
     assert moseg(["eval", "kt3dmoseg-masks", str(root), "--json", str(tmp_path / "r.json")]) == 0
     result = json.loads((tmp_path / "r.json").read_text())
@@ -31,4 +36,48 @@ def test_scores_real_frames_at_labelled_points(tmp_path, capsys):
     assert row["frames"] == 20 and row["moving_points"] > 1000 and row["static_points"] > 1000
     assert row["moving_recall"] > 0.25
     assert row["static_flagged"] < 0.02
-    assert "Seq005_Clip02" in capsys.readouterr().out
+    # One clip: the pooled figures are the clip's own.
+    assert result["recall"] == pytest.approx(row["moving_recall"])
+    assert result["static_flagged"] == pytest.approx(row["static_flagged"])
+    assert result["object_frames"] == row["object_frames"] == 2 * 19  # two movers, frames 1..19
+    assert result["object_frames_detected"] == pytest.approx(row["object_frames_detected"] / 38)
+    assert result["object_frames_detected"] > 0.25
+    printed = capsys.readouterr().out
+    assert "Seq005_Clip02" in printed and "object-frames detected" in printed
+
+
+def test_clip_files_of_any_name(tmp_path, capsys):
+    """A clip file and its frames under another name are found; SeqList.mat (no Data struct) is passed over."""
+    root = _subset(tmp_path / "kt", ["Seq070_Clip01"], rename={"Seq070_Clip01": "street"})
+    (root / "Data" / "SeqList.mat").symlink_to(shared_data("kt3dmoseg", "Data", "SeqList.mat"))
+    assert moseg(["eval", "kt3dmoseg-masks", str(root), "--json", str(tmp_path / "r.json")]) == 0
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert [c["clip"] for c in result["clips"]] == ["street"] and result["clips_without_frames"] == []
+    assert moseg(["eval", "kt3dmoseg-masks", str(tmp_path / "empty")]) == 2
+    assert "no KT3DMoSeg clip files (*.mat with a Data struct)" in capsys.readouterr().out
+
+
+def test_object_frames_need_half_of_their_visible_points():
+    labels = np.array([1, 2, 2, 2, 3, 3])
+    scored = np.ones((6, 3), dtype=bool)
+    scored[4:, 2] = False  # object 3 not visible in frame 2: not an object-frame
+    hits = np.zeros((6, 3), dtype=bool)
+    hits[1, 0] = True  # object 2, frame 0: 1 of 3 points
+    hits[1:3, 1] = True  # object 2, frame 1: 2 of 3
+    hits[4, 0] = True  # object 3, frame 0: 1 of 2 (half counts)
+    hits[0, :] = True  # background points never count
+    assert object_frame_detections(hits, scored, labels) == (5, 2)
+    assert object_frame_detections(hits, scored, np.ones(6, dtype=int)) == (0, 0)
+
+
+def test_pooled_figures_weigh_clips_by_their_points():
+    def clip(moving, hits, objects, detected):
+        return ClipMaskScore(clip="c", frames=10, moving_points=moving, static_points=100,
+                             moving_recall=hits / moving, static_flagged=0.01, ms_per_frame=5.0, moving_hits=hits,
+                             static_hits=1, object_frames=objects, object_frames_detected=detected)
+
+    totals = pooled([clip(100, 50, 10, 5), clip(300, 30, 30, 3)])
+    assert totals["recall"] == pytest.approx(80 / 400)  # the per-clip mean would be 0.3
+    assert totals["static_flagged"] == pytest.approx(2 / 200)
+    assert totals["object_frames"] == 40 and totals["object_frames_detected"] == pytest.approx(8 / 40)
+    assert np.isnan(pooled([])["recall"])

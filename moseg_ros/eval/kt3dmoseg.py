@@ -4,7 +4,8 @@ Protocol (Xu, Cheong, Li, CVPR 2018): each clip's sparse trajectories (``ySparse
 clustered by motion; the error is the fraction of trajectories whose cluster is wrong under the best one-to-one
 matching of clusters to the labels (``GtLabel``); the number of motions is given (or estimated with
 --estimate-k). The method is moseg_ros.core.segment.segment_trajectories with one fixed setting for every clip
-(TrajectoryConfig's defaults). DIR holds Seq*_Tracks.mat files, directly or under DIR/Data/.
+(TrajectoryConfig's defaults). DIR holds the clips' .mat files (any name; a file is a clip when it holds a
+``Data`` struct, so SeqList.mat is passed over), directly or under DIR/Data/.
 
 Measured on the 22 clips (views F,H, 2 processes): K given 6.30 % mean over seeds 0-4 (median 0.84 %), 6.82 %
 over seeds 0-9, 8.1 s per pass over the clips; K estimated (cluster-conductance rule,
@@ -47,13 +48,30 @@ def default_dir() -> Path:
     return Path.cwd().parent / "shared" / "data" / "kt3dmoseg"
 
 
+def is_clip_file(path: Path) -> bool:
+    """Whether a .mat file holds a ``Data`` struct, the variable every KT3DMoSeg clip file stores.
+
+    Only the file's variable directory is read (scipy.io.whosmat), so checking a folder stays cheap; a file
+    that is not a MATLAB v5 file at all (v7.3/HDF5, truncated, another format) is not a clip.
+    """
+    try:
+        return ("Data", "struct") in {(name, kind) for name, _, kind in scipy.io.whosmat(str(path))}
+    except (ValueError, OSError, NotImplementedError, scipy.io.matlab.MatReadError):
+        return False
+
+
 def find_clips(root: Path) -> list[Path]:
-    """Seq*_Tracks.mat files in root/Data/ (the dataset's layout) or, failing that, in root itself."""
+    """Clip files (*.mat with a Data struct) in root/Data/ (the dataset's layout) or, failing that, in root."""
     for folder in (root / "Data", root):
-        files = sorted(folder.glob("Seq*_Tracks.mat"), key=lambda p: p.name.lower())
+        files = sorted((p for p in folder.glob("*.mat") if is_clip_file(p)), key=lambda p: p.name.lower())
         if files:
             return files
     return []
+
+
+def no_clips_message(root: Path) -> str:
+    """What the tools print for a folder without clip files."""
+    return f"no KT3DMoSeg clip files (*.mat with a Data struct) under {root}"
 
 
 def load_clip(path: Path) -> Clip:
@@ -65,7 +83,7 @@ def load_clip(path: Path) -> Clip:
     if y.ndim != 3 or y.shape[0] != 3 or visible.shape != y.shape[1:] or labels.shape != y.shape[1:2]:
         raise ValueError(f"{path}: unexpected shapes ySparse {y.shape}, visibleSparse {visible.shape}, "
                          f"GtLabel {labels.shape}")
-    return Clip(path.name.removesuffix("_Tracks.mat"), np.transpose(y[:2], (1, 2, 0)), visible, labels)
+    return Clip(path.stem.removesuffix("_Tracks"), np.transpose(y[:2], (1, 2, 0)), visible, labels)
 
 
 def parse_views(text: str) -> tuple[str, ...]:
@@ -113,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     root = args.dir if args.dir is not None else default_dir()
     files = find_clips(root)
     if not files:
-        print(f"no Seq*_Tracks.mat under {root} or {root / 'Data'}")
+        print(no_clips_message(root))
         return 2
     if args.seeds < 1 or args.jobs < 1:
         print("--seeds and --jobs must be >= 1")

@@ -4,8 +4,11 @@ For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``), the
 exactly as the node would, and each labelled trajectory point visible in a frame is looked up in that frame's
 dynamic mask (``mask[round(y), round(x)]``). Label 1 is the static background, labels >= 2 are independently
 moving objects. Reported per clip: recall on moving points, the share of static points flagged (an upper
-bound: label 1 includes a few unannotated movers), and ms per frame. The first frame of each clip (no
-motion evidence yet) is not scored. Clips without frames are listed and skipped.
+bound: label 1 includes a few unannotated movers), object-frames detected and ms per frame. An object-frame
+is one moving object (label >= 2) in one frame where at least one of its labelled points is visible; it is
+detected when at least half of those points are in the mask. Over all clips: the per-clip means, and recall,
+static points flagged and object-frames detected pooled over every scored point-frame or object-frame. The
+first frame of each clip (no motion evidence yet) is not scored. Clips without frames are listed and skipped.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip
+from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
@@ -27,7 +30,7 @@ FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominal
 
 @dataclass
 class ClipMaskScore:
-    """One clip's point-level agreement of dynamic masks with the labels."""
+    """One clip's point-level agreement of dynamic masks with the labels (points count point-frames)."""
 
     clip: str
     frames: int
@@ -36,6 +39,10 @@ class ClipMaskScore:
     moving_recall: float
     static_flagged: float
     ms_per_frame: float
+    moving_hits: int
+    static_hits: int
+    object_frames: int
+    object_frames_detected: int
 
 
 def frames_folder(root: Path, clip: str) -> Path | None:
@@ -60,6 +67,25 @@ def points_in_masks(masks: list[np.ndarray], clip: Clip) -> np.ndarray:
     return hits
 
 
+def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.ndarray) -> tuple[int, int]:
+    """Count the object-frames of the moving objects and those detected.
+
+    Args:
+        hits: (N, F) bool, each point in its frame's mask.
+        scored: (N, F) bool, the point-frames that count (visible, not the first frame).
+        labels: (N,) labels; each label >= 2 is one moving object.
+
+    Returns:
+        (object-frames with at least one scored point, those with at least half of those points hit).
+    """
+    objects = np.unique(labels[labels >= 2])
+    members = (labels[None, :] == objects[:, None]).astype(np.int64)  # (K, N) one-hot
+    points = members @ scored.astype(np.int64)  # (K, F) scored points of each object in each frame
+    inside = members @ (hits & scored).astype(np.int64)
+    present = points > 0
+    return int(present.sum()), int((present & (2 * inside >= points)).sum())
+
+
 def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore:
     """Run the pipeline over the clip's frames and score its masks at the labelled points."""
     n = min(len(frame_paths), clip.visible.shape[1])
@@ -77,11 +103,14 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> C
     scored[:, 0] = False
     moving = (clip.labels >= 2)[:, None] & scored
     static = (clip.labels == 1)[:, None] & scored
+    object_frames, detected = object_frame_detections(hits, scored, clip.labels)
     return ClipMaskScore(
         clip=clip.name, frames=n, moving_points=int(moving.sum()), static_points=int(static.sum()),
         moving_recall=float(hits[moving].mean()) if moving.any() else float("nan"),
         static_flagged=float(hits[static].mean()) if static.any() else float("nan"),
-        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if n > 1 else float("nan"))
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if n > 1 else float("nan"),
+        moving_hits=int(hits[moving].sum()), static_hits=int(hits[static].sum()),
+        object_frames=object_frames, object_frames_detected=detected)
 
 
 def evaluate(root: Path, config: PipelineConfig = PipelineConfig()) -> tuple[list[ClipMaskScore], list[str]]:
@@ -98,6 +127,21 @@ def evaluate(root: Path, config: PipelineConfig = PipelineConfig()) -> tuple[lis
     return scores, without
 
 
+def ratio(numerator: int, denominator: int) -> float:
+    """numerator / denominator, NaN when the denominator is 0."""
+    return numerator / denominator if denominator else float("nan")
+
+
+def pooled(scores: list[ClipMaskScore]) -> dict[str, float | int]:
+    """Recall, static points flagged and object-frames detected over every scored point-frame (object-frame)
+    of every clip, so that long, densely labelled clips weigh more than in the per-clip means."""
+    object_frames = sum(s.object_frames for s in scores)
+    return {"recall": ratio(sum(s.moving_hits for s in scores), sum(s.moving_points for s in scores)),
+            "static_flagged": ratio(sum(s.static_hits for s in scores), sum(s.static_points for s in scores)),
+            "object_frames": object_frames,
+            "object_frames_detected": ratio(sum(s.object_frames_detected for s in scores), object_frames)}
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg eval kt3dmoseg-masks`."""
     parser.add_argument("dir", type=Path, nargs="?", default=None,
@@ -109,22 +153,28 @@ def run(args: argparse.Namespace) -> int:
     """Print the per-clip table and the means."""
     root = args.dir or default_dir()
     if not find_clips(root):
-        print(f"no Seq*_Tracks.mat clips under {root}")
+        print(no_clips_message(root))
         return 2
     with threadpool_limits(1):
         scores, without = evaluate(root)
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
-          f"{'static flagged %':>16s} {'ms/frame':>9s}")
+          f"{'static flagged %':>16s} {'obj-frames det.':>16s} {'ms/frame':>9s}")
     for s in scores:
         print(f"{s.clip:16s} {s.frames:6d} {s.moving_points:10d} {s.static_points:10d} {100 * s.moving_recall:9.1f} "
-              f"{100 * s.static_flagged:16.2f} {s.ms_per_frame:9.1f}")
+              f"{100 * s.static_flagged:16.2f} {f'{s.object_frames_detected} / {s.object_frames}':>16s} "
+              f"{s.ms_per_frame:9.1f}")
     means = {"moving_recall_mean": float(np.nanmean([s.moving_recall for s in scores])) if scores else float("nan"),
              "static_flagged_mean": float(np.nanmean([s.static_flagged for s in scores])) if scores else float("nan"),
              "clips_scored": len(scores), "clips_without_frames": without}
     print(f"mean over {len(scores)} clips: moving-point recall {100 * means['moving_recall_mean']:.1f} %, "
           f"static points flagged {100 * means['static_flagged_mean']:.2f} %")
+    totals = pooled(scores)
+    print(f"pooled over all scored point-frames: moving-point recall {100 * totals['recall']:.1f} %, "
+          f"static points flagged {100 * totals['static_flagged']:.2f} %")
+    print("object-frames detected (at least half of their visible points in the mask): "
+          f"{100 * totals['object_frames_detected']:.1f} % of {totals['object_frames']}")
     if without:
         print(f"skipped (no frames): {', '.join(without)}")
     if args.json:
-        args.json.write_text(json.dumps({**means, "clips": [asdict(s) for s in scores]}, indent=2) + "\n")
+        args.json.write_text(json.dumps({**means, **totals, "clips": [asdict(s) for s in scores]}, indent=2) + "\n")
     return 0

@@ -1,0 +1,204 @@
+"""Score the node's dynamic masks on DAVIS-2016 clips against each clip's annotated moving object.
+
+Layout: ``DIR/JPEGImages/480p/<clip>/*.jpg`` (or .png) and ``DIR/Annotations/480p/<clip>/*.png``, where a
+non-zero annotation pixel belongs to the moving object. Frames are taken in sorted file-name order; an
+annotation is paired with the image of the same stem or, when no stems match, by sorted order. For every
+clip that has annotations, the pipeline runs over the frames exactly as the node would (30 Hz stamps) and each
+annotated frame's dynamic mask is compared with its annotation. The first frame of each clip (no motion
+evidence yet) is not scored.
+
+Reported per clip: J (the DAVIS region measure: mean over frames of the IoU, 1 where both masks are empty),
+pixel precision and recall pooled over the clip's frames, and ms per frame (the first frame excluded). The
+mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
+ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
+positives. Clips without annotations (or without frames) are listed and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from moseg_ros.eval.masks import mask_iou
+from moseg_ros.pipeline import METHODS, Pipeline, PipelineConfig
+
+FRAME_PERIOD_NS = 1_000_000_000 / 30  # DAVIS clips are 30 fps video
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+RESOLUTION = "480p"
+
+
+@dataclass
+class ClipScore:
+    """One clip's pixel agreement of dynamic masks with the annotated object (counts over scored frames)."""
+
+    clip: str
+    frames: int
+    scored_frames: int
+    j: float
+    precision: float
+    recall: float
+    true_positives: int
+    false_positives: int
+    false_negatives: int
+    ms_per_frame: float
+
+
+def clip_names(root: Path) -> list[str]:
+    """Names of the clip folders under root/JPEGImages/480p, sorted."""
+    folder = root / "JPEGImages" / RESOLUTION
+    return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
+
+
+def files_with_suffix(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    """Files of folder whose suffix is one of suffixes (any case), sorted by name; [] if folder is absent."""
+    if not folder.is_dir():
+        return []
+    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes),
+                  key=lambda p: p.name)
+
+
+def pair_annotations(images: list[Path], annotations: list[Path]) -> list[Path | None]:
+    """The annotation of each image, or None for an image without one.
+
+    Args:
+        images: the clip's frames in order.
+        annotations: the clip's annotation files in sorted order.
+
+    Returns:
+        One entry per image: the annotation with the same stem when any stems match (so a clip annotated on a
+        subset of frames is paired correctly), otherwise the annotation at the same sorted position.
+    """
+    by_stem = {p.stem: p for p in annotations}
+    if by_stem.keys() & {p.stem for p in images}:
+        return [by_stem.get(p.stem) for p in images]
+    return [annotations[i] if i < len(annotations) else None for i in range(len(images))]
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    """(H, W, 3) uint8 RGB frame (cv2 decodes to BGR; the pipeline takes RGB)."""
+    frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if frame is None:
+        raise ValueError(f"cannot read frame {path}")
+    return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+
+
+def read_annotation(path: Path) -> np.ndarray:
+    """(H, W) bool object mask: non-zero in any channel (grey 0/255 in DAVIS-2016, palette colours elsewhere)."""
+    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if mask is None:
+        raise ValueError(f"cannot read annotation {path}")
+    return mask.any(axis=2) if mask.ndim == 3 else mask > 0
+
+
+def pooled_ratio(numerator: int, denominator: int) -> float:
+    """numerator / denominator, NaN when the denominator is 0."""
+    return numerator / denominator if denominator else float("nan")
+
+
+def score_clip(name: str, images: list[Path], annotations: list[Path | None], config: PipelineConfig) -> ClipScore:
+    """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it."""
+    pipeline = Pipeline(config)
+    ious, seconds = [], []
+    tp = fp = fn = 0
+    for t, (image, annotation) in enumerate(zip(images, annotations)):
+        result = pipeline.process(read_rgb(image), round(t * FRAME_PERIOD_NS))
+        seconds.append(result.seconds)
+        if t == 0 or annotation is None:
+            continue
+        predicted, truth = result.masks.dynamic > 0, read_annotation(annotation)
+        if truth.shape != predicted.shape:
+            raise ValueError(f"annotation {annotation} is {truth.shape}, its frame {image} {predicted.shape}")
+        ious.append(mask_iou(predicted, truth))
+        tp += np.count_nonzero(predicted & truth)
+        fp += np.count_nonzero(predicted & ~truth)
+        fn += np.count_nonzero(~predicted & truth)
+    return ClipScore(
+        clip=name, frames=len(images), scored_frames=len(ious),
+        j=float(np.mean(ious)) if ious else float("nan"),
+        precision=pooled_ratio(tp, tp + fp), recall=pooled_ratio(tp, tp + fn),
+        true_positives=int(tp), false_positives=int(fp), false_negatives=int(fn),
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"))
+
+
+def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None) -> tuple[list[ClipScore], list[str]]:
+    """Score every clip of ``root`` that has frames and annotations; returns the scores and the skipped clips."""
+    scores, skipped = [], []
+    for name in clip_names(root):
+        images = files_with_suffix(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
+        annotations = files_with_suffix(root / "Annotations" / RESOLUTION / name, (".png",))
+        if not images or not annotations:
+            skipped.append(name)
+            continue
+        scores.append(score_clip(name, images, pair_annotations(images, annotations), config))
+    return scores, skipped
+
+
+def finite_mean(values: list[float]) -> float:
+    """Mean of the finite values (a clip with nothing scored is NaN and left out), NaN if there are none."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
+
+
+def summary(scores: list[ClipScore]) -> dict[str, float]:
+    """J and ms per frame averaged over clips; precision and recall pooled over all scored frames."""
+    tp = sum(s.true_positives for s in scores)
+    return {"mean_j": finite_mean([s.j for s in scores]),
+            "precision": pooled_ratio(tp, tp + sum(s.false_positives for s in scores)),
+            "recall": pooled_ratio(tp, tp + sum(s.false_negatives for s in scores)),
+            "ms_per_frame": finite_mean([s.ms_per_frame for s in scores])}
+
+
+def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
+    """The pipeline settings of this run (only the method is an option; the rest are the node's defaults)."""
+    return PipelineConfig(method=args.method)
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `moseg eval davis`."""
+    parser.add_argument("dir", type=Path, help="DAVIS-2016 folder (JPEGImages/480p/<clip>/, Annotations/480p/<clip>/)")
+    parser.add_argument("--method", choices=METHODS, default=PipelineConfig.method,
+                        help=f"pipeline method (default {PipelineConfig.method}; without instance maps "
+                             "object_level falls back to the baseline)")
+    parser.add_argument("--max-frames", type=positive_int, default=None,
+                        help="process at most this many frames per clip (default: all)")
+    parser.add_argument("--json", type=Path, help="also write the per-clip rows and the means to this file")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the per-clip table and the mean line; 0 on success, 2 without clips."""
+    if not clip_names(args.dir):
+        print(f"no DAVIS clips (JPEGImages/{RESOLUTION}/<clip>/) under {args.dir}")
+        return 2
+    config = pipeline_config(args)
+    with threadpool_limits(1):
+        scores, skipped = evaluate(args.dir, config, args.max_frames)
+    print(f"{'clip':20s} {'frames':>6s} {'scored':>6s} {'J %':>6s} {'precision %':>11s} {'recall %':>8s} "
+          f"{'ms/frame':>8s}")
+    for s in scores:
+        print(f"{s.clip:20s} {s.frames:6d} {s.scored_frames:6d} {100 * s.j:6.1f} {100 * s.precision:11.1f} "
+              f"{100 * s.recall:8.1f} {s.ms_per_frame:8.1f}")
+    means = summary(scores)
+    print(f"mean over {len(scores)} clips: J {100 * means['mean_j']:.1f} %, pooled precision "
+          f"{100 * means['precision']:.1f} %, recall {100 * means['recall']:.1f} %, "
+          f"{means['ms_per_frame']:.1f} ms per frame ({config.method})")
+    if skipped:
+        print(f"skipped (no annotations or no frames): {', '.join(skipped)}")
+    if args.json:
+        report = {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
+                  "config": asdict(config)}
+        args.json.write_text(json.dumps(report, indent=2) + "\n")
+    return 0

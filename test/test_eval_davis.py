@@ -1,0 +1,97 @@
+"""`moseg eval davis` on synthetic folders of the DAVIS-2016 layout and on one real clip (skipped without it)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from conftest import shared_data, textured_frames
+from moseg_ros.cli import main as moseg
+from moseg_ros.eval.davis import pair_annotations
+
+HEIGHT, WIDTH = 160, 320  # at 96x160 the default pipeline flags nothing on these frames (measured)
+
+
+def block_truth(index: int, height: int = HEIGHT, width: int = WIDTH, speed: int = 3) -> np.ndarray:
+    """The sliding block of conftest.textured_frames in frame ``index`` (as in test_pipeline.py)."""
+    truth = np.zeros((height, width), dtype=bool)
+    y = height // 6 + speed * index
+    truth[y:y + height // 3, width // 4:width // 4 + width // 8] = True
+    return truth
+
+
+def _write_clip(root: Path, clip: str, image_names: list[str], annotation_names: list[str], seed: int) -> None:
+    """One clip of textured frames (RGB, written as BGR like any image file) and its block annotations."""
+    images = root / "JPEGImages" / "480p" / clip
+    images.mkdir(parents=True)
+    for name, frame in zip(image_names, textured_frames(len(image_names), HEIGHT, WIDTH, seed=seed)):
+        cv2.imwrite(str(images / name), cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+    if annotation_names:
+        annotations = root / "Annotations" / "480p" / clip
+        annotations.mkdir(parents=True)
+        for i, name in enumerate(annotation_names):
+            cv2.imwrite(str(annotations / name), block_truth(i).astype(np.uint8) * 255)
+
+
+def test_scores_synthetic_clips_of_any_names_and_lists_a_clip_without_annotations(tmp_path, capsys):
+    root = tmp_path / "davis"
+    letters = "abcdef"
+    # Stems match: paired by stem. Different stems (and png frames): paired by sorted order.
+    _write_clip(root, "block-a", [f"frame_{c}.jpg" for c in letters], [f"frame_{c}.png" for c in letters], seed=0)
+    _write_clip(root, "block-b", [f"img{i:03d}.png" for i in range(6)], [f"gt_{i}.png" for i in range(6)], seed=1)
+    _write_clip(root, "no-gt", [f"{i}.jpg" for i in range(3)], [], seed=2)
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert {"mean_j", "precision", "recall", "ms_per_frame"} <= result.keys()
+    assert [c["clip"] for c in result["clips"]] == ["block-a", "block-b"]
+    assert result["clips_skipped"] == ["no-gt"]
+    assert all(c["frames"] == 6 and c["scored_frames"] == 5 for c in result["clips"])  # frame 0 not scored
+    # Measured: J 0.58 and 0.57 (frame 1 is always empty: a region must persist 2 frames), pooled precision
+    # 0.74, recall 0.76.
+    assert all(0.3 < c["j"] <= 1.0 for c in result["clips"])
+    assert 0.3 < result["mean_j"] <= 1.0
+    assert 0.5 < result["precision"] <= 1.0 and 0.5 < result["recall"] <= 1.0
+    assert result["ms_per_frame"] > 0
+    printed = capsys.readouterr().out
+    assert "block-b" in printed and "mean over 2 clips" in printed and "skipped" in printed and "no-gt" in printed
+
+
+def test_max_frames_and_a_folder_without_clips(tmp_path, capsys):
+    root = tmp_path / "davis"
+    _write_clip(root, "short", [f"{i:05d}.jpg" for i in range(5)], [f"{i:05d}.png" for i in range(5)], seed=0)
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--max-frames", "3", "--json", str(out)]) == 0
+    clip = json.loads(out.read_text())["clips"][0]
+    assert clip["frames"] == 3 and clip["scored_frames"] == 2
+    assert moseg(["eval", "davis", str(tmp_path / "empty")]) == 2
+    assert "no DAVIS clips" in capsys.readouterr().out
+
+
+def test_annotations_pair_by_stem_or_by_order():
+    images = [Path(f"{i:05d}.jpg") for i in range(4)]
+    # Annotated on a subset of the frames: the others have none.
+    assert pair_annotations(images, [Path("00000.png"), Path("00002.png")]) == [
+        Path("00000.png"), None, Path("00002.png"), None]
+    # No stem in common: sorted order, frames beyond the last annotation have none.
+    assert pair_annotations(images, [Path("a.png"), Path("b.png")]) == [Path("a.png"), Path("b.png"), None, None]
+
+
+def test_one_real_clip(tmp_path):
+    """DAVIS-2016 'dog' (a dog running, tracking camera), 12 frames: only checks the figures are well formed."""
+    source = shared_data("davis2016")
+    root = tmp_path / "davis"
+    for kind in ("JPEGImages", "Annotations"):
+        (root / kind / "480p").mkdir(parents=True)
+        (root / kind / "480p" / "dog").symlink_to(source / kind / "480p" / "dog")
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--max-frames", "12", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert 1 <= len(result["clips"]) <= 10 and result["clips"][0]["scored_frames"] == 11
+    for key in ("mean_j", "precision", "recall"):
+        assert math.isfinite(result[key]) and 0.0 <= result[key] <= 1.0, key
+    assert math.isfinite(result["ms_per_frame"]) and result["ms_per_frame"] > 0
