@@ -15,7 +15,7 @@ import collections
 import sys
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -28,65 +28,32 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, HistoryPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from moseg_ros.core.baseline import BaselineConfig
 from moseg_ros.io.frames import decode_frame, decode_instances
 from moseg_ros.io.image import image_from_array
-from moseg_ros.pipeline import FLOW_PRESETS, METHODS, FrameResult, Pipeline, PipelineConfig
+from moseg_ros.params import Setting, all_settings, settings_of
+from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import debug_overlay
 
-QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
-# String parameters with a closed set of values; checked at start (descriptors cannot express choices).
-CHOICES: dict[str, tuple[str, ...]] = {
-    "image_qos": QOS_CHOICES, "method": METHODS, "flow_preset": FLOW_PRESETS,
-}
-
-
-def _describe(text: str, *, choices: tuple[str, ...] = (), low: float | None = None,
-              high: float | None = None, integer: bool = False) -> ParameterDescriptor:
-    """A read-only parameter descriptor with its allowed range or choices in the text."""
-    descriptor = ParameterDescriptor(description=text, read_only=True)
-    if choices:
-        descriptor.additional_constraints = "one of: " + ", ".join(choices)
-    if low is not None and high is not None:
-        if integer:
-            descriptor.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
+def _describe(entry: Setting) -> ParameterDescriptor:
+    """A read-only parameter descriptor with the setting's range, or its choices in the constraints text."""
+    descriptor = ParameterDescriptor(description=entry.description, read_only=True)
+    if entry.choices:
+        descriptor.additional_constraints = "one of: " + ", ".join(entry.choices)
+    if entry.low is not None:
+        if isinstance(entry.default, int):
+            descriptor.integer_range = [IntegerRange(from_value=int(entry.low), to_value=int(entry.high), step=1)]
         else:
-            descriptor.floating_point_range = [FloatingPointRange(from_value=float(low), to_value=float(high))]
+            descriptor.floating_point_range = [FloatingPointRange(from_value=float(entry.low),
+                                                                  to_value=float(entry.high))]
     return descriptor
 
 
-# name -> (default, descriptor). Ranges are enforced by rclpy at declaration time.
+# name -> (default, descriptor), derived from the one schema (moseg_ros/params.py). rclpy enforces the ranges
+# at declaration; choices are checked by the schema at start (descriptors cannot express them).
+SCHEMA = {entry.name: entry for entry in all_settings()}
 PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
-    "image_qos": ("sensor_data", _describe("QoS of the image subscription", choices=CHOICES["image_qos"])),
-    "qos_depth": (5, _describe("history depth of the subscriptions", low=1, high=100, integer=True)),
-    "compressed_input": (False, _describe("subscribe image as sensor_msgs/CompressedImage")),
-    "use_instances": (False, _describe("pair each image with an upstream instance-id image on `instances`")),
-    "instances_timeout_s": (0.2, _describe("how long a frame waits for its instance image", low=0.0, high=5.0)),
-    "queue_size": (4, _describe("frames waiting for the worker; the oldest is dropped on overflow",
-                                low=1, high=100, integer=True)),
-    "method": ("epipolar_baseline", _describe("motion decision method", choices=CHOICES["method"])),
-    "working_width": (640, _describe("frames are processed at this width (pixels)", low=64, high=4096,
-                                     integer=True)),
-    "flow_preset": ("auto", _describe("DIS optical flow preset (auto: fast for epipolar_baseline, medium for "
-                                      "object_level)", choices=CHOICES["flow_preset"])),
-    "mask_margin_px": (6, _describe("dilation of published masks (output pixels)", low=0, high=100,
-                                    integer=True)),
-    "min_region_area": (60, _describe("smallest moving region kept (working pixels)", low=1, high=100000,
-                                      integer=True)),
-    "min_persistence": (2, _describe("frames a moving region must persist before it is flagged", low=1,
-                                      high=100, integer=True)),
-    "instance_min_fraction": (0.3, _describe("share of an instance that must move to flag it", low=0.01,
-                                             high=1.0)),
-    "residual_threshold_px": (1.5, _describe("epipolar residual above which a pixel moves (working px)",
-                                             low=0.1, high=50.0)),
-    "window_length": (8, _describe("object_level: frames in the sliding window", low=3, high=60, integer=True)),
-    "refit_interval": (4, _describe("object_level: frames between refits of the motion models", low=1,
-                                    high=60, integer=True)),
-    "ground_contact": (True, _describe("object_level: objects standing on the ground plane are moving when "
-                                       "their foot slides over it")),
-    "diagnostics_period_s": (1.0, _describe("period of /diagnostics", low=0.1, high=60.0)),
-    "warn_throttle_s": (5.0, _describe("minimum time between repeated warnings", low=0.0, high=600.0)),
-}
+    name: (entry.default, _describe(entry)) for name, entry in SCHEMA.items()}
+PIPELINE_NAMES = tuple(entry.name for entry in settings_of(PipelineConfig))
 
 
 @dataclass
@@ -144,21 +111,13 @@ class SegmenterNode(Node):
             f"input={image_type.__name__} use_instances={self.settings['use_instances']}")
 
     def _check_choices(self) -> None:
-        for name, allowed in CHOICES.items():
-            if self.settings[name] not in allowed:
-                raise ValueError(f"parameter {name}={self.settings[name]!r} is not one of {list(allowed)}")
+        for name, value in self.settings.items():
+            SCHEMA[name].check(value)
         if self.settings["method"] == "object_level" and not self.settings["use_instances"]:
             raise ValueError("method object_level segments instances: set use_instances:=true and remap `instances`")
 
     def _pipeline_config(self) -> PipelineConfig:
-        s = self.settings
-        return PipelineConfig(
-            method=s["method"], working_width=s["working_width"], flow_preset=s["flow_preset"],
-            mask_margin_px=s["mask_margin_px"], min_region_area=s["min_region_area"],
-            min_persistence=s["min_persistence"],
-            instance_min_fraction=s["instance_min_fraction"], window_length=s["window_length"],
-            refit_interval=s["refit_interval"], ground_contact=s["ground_contact"],
-            baseline=replace(BaselineConfig(), residual_threshold_px=s["residual_threshold_px"]))
+        return PipelineConfig(**{name: self.settings[name] for name in PIPELINE_NAMES})
 
     def _input_qos(self) -> QoSProfile:
         depth = self.settings["qos_depth"]

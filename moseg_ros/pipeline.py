@@ -2,7 +2,8 @@
 
 ``Pipeline.process`` takes one decoded frame (and optionally an upstream instance map with the same stamp)
 and always returns masks for that frame. The first frame of a stream, or the first after a reset, has no
-motion evidence yet and gets an empty dynamic mask with status ``warmup``. A frame smaller than
+motion evidence yet and gets an empty dynamic mask with status ``warmup``. The method (methods/, chosen by
+``PipelineConfig.method``) decides; the pipeline is the shell they share. A frame smaller than
 ``MIN_WORKING_SIDE`` on either side gets an empty mask with status ``too_small`` before any OpenCV call (DIS
 flow crashes the process on working heights below 32 px, OpenCV 5.0), and a frame whose method raises gets an
 empty mask with status ``failed: <reason>``; both restart the window.
@@ -11,27 +12,22 @@ empty mask with status ``failed: <reason>``; both restart the window.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
 
-from moseg_ros.core.baseline import BaselineConfig, dynamic_instances, epipolar_residual
-from moseg_ros.core.segment import SegmentConfig, segment_objects
-from moseg_ros.frontend.flow import DIS_PRESETS, DenseFlow
-from moseg_ros.frontend.instances import InstanceTracker, propose_regions
-from moseg_ros.frontend.tracks import PointTracker
-from moseg_ros.frontend.window import Window, WindowFrame
+from moseg_ros.core.baseline import BaselineConfig
+from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.io.image import to_gray
+from moseg_ros.methods import DEFAULT_METHOD, METHODS as METHOD_CLASSES
+from moseg_ros.methods.base import FrameInput, Status
+from moseg_ros.params import check_all, setting
 from moseg_ros.render import Masks, render_masks
 
-# epipolar_baseline: one dominant epipolar geometry, per-pixel residuals (core/baseline.py).
-# object_level: the paper's fused epipolar + flow models per instance over a sliding window (core/segment.py);
-#   it needs an instance map with every frame and falls back to the baseline for frames without one.
-METHODS = ("epipolar_baseline", "object_level")
-# auto: fast for epipolar_baseline; medium for object_level, whose ground-contact test compares flows of a
-# pixel or two (measured on the synthetic presets: 152 of 208 moving object-frames flagged with medium, 91 with
-# fast; see core/ground.py).
+METHODS = tuple(METHOD_CLASSES)
+# auto: each method's own preset (methods/*.py: fast for moving_objects and epipolar_baseline; medium for
+# object_level, whose ground-contact test compares flows of a pixel or two).
 FLOW_PRESETS = ("auto", *DIS_PRESETS)
 # Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
 # 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
@@ -40,46 +36,43 @@ MIN_WORKING_SIDE = 32
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """Every setting of the pipeline; the node's parameters map one to one onto these fields."""
+    """Every setting of the pipeline, each declared once with its range and description (moseg_ros/params.py);
+    the node's parameters, the YAML file and every tool's --params/--set map one to one onto these fields."""
 
-    method: str = "epipolar_baseline"
-    working_width: int = 640
-    flow_preset: str = "auto"
-    mask_margin_px: int = 6
-    min_region_area: int = 60
-    min_persistence: int = 2
-    instance_min_fraction: float = 0.3
-    window_length: int = 8
-    refit_interval: int = 4
-    ground_contact: bool = True
-    baseline: BaselineConfig = field(default_factory=BaselineConfig)
+    method: str = setting(DEFAULT_METHOD, "motion decision method: moving_objects finds the moving objects itself "
+                          "(tracks + dense flow, no weights); epipolar_baseline; object_level (needs use_instances)",
+                          choices=METHODS)
+    working_width: int = setting(640, "frames are processed at this width (pixels; dense flow)", low=64, high=4096)
+    track_width: int = setting(1280, "moving_objects: KLT tracks run at this width (pixels)", low=64, high=4096)
+    max_tracks: int = setting(2000, "moving_objects: points tracked per frame", low=50, high=20000)
+    flow_preset: str = setting("auto", "DIS optical flow preset (auto: medium for object_level, else fast)",
+                               choices=FLOW_PRESETS)
+    residual_threshold_px: float = setting(1.5, "epipolar_baseline: epipolar residual above which a pixel moves "
+                                           "(working px)", low=0.1, high=50.0)
+    min_region_area: int = setting(60, "smallest moving region kept (working pixels)", low=1, high=100000)
+    min_persistence: int = setting(2, "epipolar_baseline: frames a moving region must persist before it is "
+                                   "flagged", low=1, high=100)
+    instance_min_fraction: float = setting(0.3, "with instances: share of an instance that must move to flag it",
+                                           low=0.01, high=1.0)
+    window_length: int = setting(8, "frames in the sliding window (moving_objects, object_level)", low=3, high=60)
+    refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
+    ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "
+                                   "their foot slides over it")
+    mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
 
     def dis_preset(self) -> str:
         """The DIS preset that flow_preset stands for (auto: by method)."""
         if self.flow_preset != "auto":
             return self.flow_preset
-        return "medium" if self.method == "object_level" else "fast"
+        return METHOD_CLASSES[self.method].flow_preset
+
+    def baseline(self) -> BaselineConfig:
+        """The epipolar baseline's settings."""
+        return replace(BaselineConfig(), residual_threshold_px=self.residual_threshold_px)
 
     def validate(self) -> None:
-        """Raise ValueError naming the first setting out of range."""
-        if self.method not in METHODS:
-            raise ValueError(f"method {self.method!r} is not one of {METHODS}")
-        if self.flow_preset not in FLOW_PRESETS:
-            raise ValueError(f"flow_preset {self.flow_preset!r} is not one of {FLOW_PRESETS}")
-        if not 64 <= self.working_width <= 4096:
-            raise ValueError(f"working_width {self.working_width} must be within 64..4096 pixels")
-        if self.mask_margin_px < 0:
-            raise ValueError(f"mask_margin_px {self.mask_margin_px} must be >= 0")
-        if self.min_region_area < 1:
-            raise ValueError(f"min_region_area {self.min_region_area} must be >= 1")
-        if self.min_persistence < 1:
-            raise ValueError(f"min_persistence {self.min_persistence} must be >= 1")
-        if not 0.0 < self.instance_min_fraction <= 1.0:
-            raise ValueError(f"instance_min_fraction {self.instance_min_fraction} must be in (0, 1]")
-        if self.window_length < 3:
-            raise ValueError(f"window_length {self.window_length} must be >= 3")
-        if self.refit_interval < 1:
-            raise ValueError(f"refit_interval {self.refit_interval} must be >= 1")
+        """Raise ValueError naming the first setting of the wrong type or out of range."""
+        check_all(self)
 
 
 @dataclass
@@ -89,51 +82,43 @@ class FrameResult:
     Attributes:
         stamp_ns: the input's stamp, unchanged.
         masks: masks at the input size.
-        status: ``ok``, ``warmup`` (no previous frame yet), ``no_geometry`` (camera too still or RANSAC
-            failed: nothing flagged), ``reset: <reason>`` (window cleared before this frame), ``too_small``
-            (a side below MIN_WORKING_SIDE: empty mask) or ``failed: <reason>`` (the method raised: empty
-            mask, window cleared).
+        kind: the Status (methods/base.py): ok, warmup, no_geometry, no_instances, reset (window cleared
+            before this frame), too_small (a side below MIN_WORKING_SIDE: empty mask) or failed (the method
+            raised: empty mask, window cleared).
         dynamic_ids: (D,) ids of the instances flagged as moving.
         seconds: processing time of this frame.
+        reason: why, for reset and failed.
     """
 
     stamp_ns: int
     masks: Masks
-    status: str
+    kind: Status
     dynamic_ids: np.ndarray
     seconds: float
+    reason: str = ""
+
+    @property
+    def status(self) -> str:
+        """The status as text: ``kind`` or ``kind: reason``."""
+        return f"{self.kind.value}: {self.reason}" if self.reason else self.kind.value
 
 
 class Pipeline:
-    """Streaming motion segmentation over a sliding window of frames."""
+    """Streaming motion segmentation: the shell every method shares (checks, resets, resizing, masks, timing)."""
 
     def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
         config.validate()
         self.config = config
-        self._flow = DenseFlow(config.dis_preset())
-        self._segment_config = SegmentConfig() if config.ground_contact else SegmentConfig(ground_contact=None)
-        self._tracker = InstanceTracker()
-        self._points = PointTracker()
-        self._window = Window(config.window_length)
-        self._object_dynamic = np.zeros(0, dtype=np.int32)
-        self._known_objects: set[int] = set()
-        self._since_refit = 0
-        self._previous: np.ndarray | None = None
+        self.method = METHOD_CLASSES[config.method](config)
         self._last_stamp: int | None = None
         self._input_size: tuple[int, int] | None = None
         self.resets = 0
 
     def reset(self) -> None:
         """Clear the window (the next frame starts a new stream)."""
-        self._previous = None
         self._last_stamp = None
         self._input_size = None
-        self._tracker.reset()
-        self._points.reset()
-        self._window.reset()
-        self._object_dynamic = np.zeros(0, dtype=np.int32)
-        self._known_objects = set()
-        self._since_refit = 0
+        self.method.reset()
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
         # Downscale to working_width, but never below MIN_WORKING_SIDE on a side that is at least that long.
@@ -165,84 +150,34 @@ class Pipeline:
         size = image.shape[:2]
         if instances is not None and instances.shape != size:
             raise ValueError(f"instance map {instances.shape} does not match the image {size}")
-        status = "ok"
         if min(size) < MIN_WORKING_SIDE:
             self.reset()
-            return self._empty(stamp_ns, size, "too_small", start)
+            return self._empty(stamp_ns, size, Status.TOO_SMALL, "", start)
         reason = self._reset_reason(size, stamp_ns)
         if reason is not None:
             self.reset()
             self.resets += 1
-            status = f"reset: {reason}"
         try:
-            return self._segment(image, stamp_ns, instances, status, start)
+            decision = self.method.step(self._frame_input(image, instances))
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
             self.reset()
-            return self._empty(stamp_ns, size, f"failed: {type(error).__name__}: {error}".splitlines()[0], start)
-
-    def _empty(self, stamp_ns: int, size: tuple[int, int], status: str, start: float) -> FrameResult:
-        masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)
-        return FrameResult(stamp_ns, masks, status, np.zeros(0, dtype=np.int32), time.perf_counter() - start)
-
-    def _segment(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None, status: str,
-                 start: float) -> FrameResult:
-        size = image.shape[:2]
-        h, w = self._working_size(*size)
-        gray = cv2.resize(to_gray(image, "mono8" if image.ndim == 2 else "rgb8"), (w, h),
-                          interpolation=cv2.INTER_AREA)
-        previous, self._previous = self._previous, gray
+            return self._empty(stamp_ns, size, Status.FAILED,
+                               f"{type(error).__name__}: {error}".splitlines()[0], start)
         self._last_stamp, self._input_size = stamp_ns, size
+        masks = render_masks(decision.labels, decision.dynamic_ids, size, self.config.mask_margin_px)
+        kind = Status.RESET if reason is not None else decision.status
+        return FrameResult(stamp_ns, masks, kind, decision.dynamic_ids, time.perf_counter() - start,
+                           reason=reason or "")
 
+    def _frame_input(self, image: np.ndarray, instances: np.ndarray | None) -> FrameInput:
+        full = to_gray(image, "mono8" if image.ndim == 2 else "rgb8")
+        h, w = self._working_size(*full.shape)
+        gray = cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA) if (h, w) != full.shape else full
         if instances is not None:
             instances = cv2.resize(instances.astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
-        objects = self.config.method == "object_level" and instances is not None
-        if self.config.method == "object_level":
-            self._points.update(gray)
-        labels = np.zeros((h, w), dtype=np.int32)
-        dynamic_ids = np.zeros(0, dtype=np.int32)
-        if previous is None:
-            status = "warmup" if status == "ok" else status
-            if objects:
-                self._push_window(instances, None)
-        elif objects:
-            labels, dynamic_ids = self._decide_objects(instances, self._flow(previous, gray))
-        else:
-            labels, dynamic_ids, found = self._decide(previous, gray, instances)
-            if not found and status == "ok":
-                status = "no_geometry"
-            if self.config.method == "object_level":
-                self._window.reset()  # the window must hold consecutive frames; refill it from the next one
-                status = "no_instances" if status == "ok" else status
-        masks = render_masks(labels, dynamic_ids, size, self.config.mask_margin_px)
-        return FrameResult(stamp_ns, masks, status, dynamic_ids, time.perf_counter() - start)
+        return FrameInput(gray=gray, full=full, instances=instances)
 
-    def _push_window(self, labels: np.ndarray, flow: np.ndarray | None) -> None:
-        self._window.push(WindowFrame(labels, flow, self._points.ids.copy(), self._points.points.copy()))
-
-    def _decide_objects(self, labels: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Refit the object-level motion models every few frames (or when an object appears); in between,
-        each instance keeps its last decision, carried by its id."""
-        self._push_window(labels, flow)
-        present = set(np.unique(labels).tolist()) - {0}
-        appeared = bool(present - self._known_objects)
-        self._known_objects |= present
-        self._since_refit += 1
-        if len(self._window) >= 3 and (self._since_refit >= self.config.refit_interval or appeared):
-            result = segment_objects(*self._window.arrays(), config=self._segment_config,
-                                     rng=np.random.default_rng(0))
-            self._object_dynamic = result.object_ids[result.dynamic].astype(np.int32)
-            self._since_refit = 0
-        return labels, np.intersect1d(self._object_dynamic, np.array(sorted(present), dtype=np.int32))
-
-    def _decide(self, previous: np.ndarray, gray: np.ndarray,
-                instances: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, bool]:
-        evidence = epipolar_residual(self._flow(gray, previous), self._flow(previous, gray), self.config.baseline)
-        moving = evidence.residual > evidence.threshold
-        if instances is not None:
-            labels = instances
-            ids = dynamic_instances(labels, moving, evidence.valid, self.config.instance_min_fraction)
-        else:
-            labels = self._tracker.update(propose_regions(moving, self.config.min_region_area))
-            ids = np.array(sorted(i for i, age in self._tracker.ages.items()
-                                  if age >= self.config.min_persistence), dtype=np.int32)
-        return labels, ids, evidence.fundamental is not None
+    def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
+        masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)
+        return FrameResult(stamp_ns, masks, kind, np.zeros(0, dtype=np.int32), time.perf_counter() - start,
+                           reason=reason)

@@ -166,7 +166,7 @@ def test_a_method_that_raises_gives_an_empty_mask_with_the_reason_and_restarts_t
     def broken(*args, **kwargs):
         raise ValueError("no model")
 
-    monkeypatch.setattr(pipeline, "_decide", broken)
+    monkeypatch.setattr(pipeline.method, "step", broken)
     result = pipeline.process(frames[2], 2 * STEP)
     assert result.status == "failed: ValueError: no model"
     assert not result.masks.dynamic.any() and result.masks.dynamic.shape == frames[2].shape[:2]

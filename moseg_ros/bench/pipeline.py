@@ -15,7 +15,8 @@ from threadpoolctl import threadpool_limits
 
 from moseg_ros.io.bags import read_images
 from moseg_ros.io.frames import decode_frame
-from moseg_ros.pipeline import FLOW_PRESETS, METHODS, Pipeline, PipelineConfig
+from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 
 def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig(),
@@ -37,29 +38,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg bench pipeline`."""
     parser.add_argument("bag", type=Path, nargs="?", help="bag to read frames from (default: synthetic street)")
     parser.add_argument("--frames", type=int, default=30)
-    parser.add_argument("--working-width", type=int, default=PipelineConfig.working_width)
-    parser.add_argument("--flow-preset", choices=FLOW_PRESETS, default=PipelineConfig.flow_preset)
-    parser.add_argument("--method", choices=METHODS, default=PipelineConfig.method,
-                        help="object_level runs on the synthetic street's ground-truth instance maps (no bag)")
+    add_settings_arguments(parser)  # --method object_level runs on the synthetic street's ground-truth instances
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the timing as JSON."""
+    try:
+        config = pipeline_config(args)
+    except ValueError as error:
+        print(f"moseg bench pipeline: error: {error}")
+        return 2
     instances = None
     if args.bag is None:
         from moseg_ros.synth.scenarios import render_sequence
 
         sequence = render_sequence("default", n_frames=args.frames).frames
         frames = [f.rgb for f in sequence]
-        if args.method == "object_level":
+        if config.method == "object_level":
             instances = [f.instances for f in sequence]
-    elif args.method == "object_level":
+    elif config.method == "object_level":
         print("moseg bench pipeline: --method object_level needs instance maps: run it without a bag")
         return 2
     else:
         frames = [decode_frame(image.msg) for image, _ in zip(read_images(args.bag), range(args.frames))]
-    config = PipelineConfig(method=args.method, working_width=args.working_width, flow_preset=args.flow_preset)
     with threadpool_limits(1):
         result = bench_pipeline(frames, config, instances)
-    print(json.dumps({"method": args.method, "flow_preset": config.dis_preset(), **result}, indent=2))
+    print(json.dumps({"method": config.method, "flow_preset": config.dis_preset(), **result}, indent=2))
     return 0

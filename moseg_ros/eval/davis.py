@@ -26,7 +26,8 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.masks import mask_iou
-from moseg_ros.pipeline import METHODS, Pipeline, PipelineConfig
+from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 FRAME_PERIOD_NS = 1_000_000_000 / 30  # DAVIS clips are 30 fps video
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
@@ -154,11 +155,6 @@ def summary(scores: list[ClipScore]) -> dict[str, float]:
             "ms_per_frame": finite_mean([s.ms_per_frame for s in scores])}
 
 
-def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
-    """The pipeline settings of this run (only the method is an option; the rest are the node's defaults)."""
-    return PipelineConfig(method=args.method)
-
-
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1."""
     value = int(text)
@@ -170,9 +166,7 @@ def positive_int(text: str) -> int:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg eval davis`."""
     parser.add_argument("dir", type=Path, help="DAVIS-2016 folder (JPEGImages/480p/<clip>/, Annotations/480p/<clip>/)")
-    parser.add_argument("--method", choices=METHODS, default=PipelineConfig.method,
-                        help=f"pipeline method (default {PipelineConfig.method}; without instance maps "
-                             "object_level falls back to the baseline)")
+    add_settings_arguments(parser)
     parser.add_argument("--max-frames", type=positive_int, default=None,
                         help="process at most this many frames per clip (default: all)")
     parser.add_argument("--json", type=Path, help="also write the per-clip rows and the means to this file")
@@ -183,7 +177,11 @@ def run(args: argparse.Namespace) -> int:
     if not clip_names(args.dir):
         print(f"no DAVIS clips (JPEGImages/{RESOLUTION}/<clip>/) under {args.dir}")
         return 2
-    config = pipeline_config(args)
+    try:
+        config = pipeline_config(args)
+    except ValueError as error:
+        print(f"moseg eval davis: error: {error}")
+        return 2
     with threadpool_limits(1):
         scores, skipped = evaluate(args.dir, config, args.max_frames)
     print(f"{'clip':20s} {'frames':>6s} {'scored':>6s} {'J %':>6s} {'precision %':>11s} {'recall %':>8s} "

@@ -23,6 +23,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
+from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
@@ -147,6 +148,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dir", type=Path, nargs="?", default=None,
                         help="KT3DMoSeg folder (Data/*.mat and OriginalSequences/); default ../shared/data/kt3dmoseg")
     parser.add_argument("--json", type=Path, help="also write the per-clip rows and means to this file")
+    add_settings_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -155,8 +157,13 @@ def run(args: argparse.Namespace) -> int:
     if not find_clips(root):
         print(no_clips_message(root))
         return 2
+    try:
+        config = pipeline_config(args)
+    except ValueError as error:
+        print(f"moseg eval kt3dmoseg-masks: error: {error}")
+        return 2
     with threadpool_limits(1):
-        scores, without = evaluate(root)
+        scores, without = evaluate(root, config)
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
           f"{'static flagged %':>16s} {'obj-frames det.':>16s} {'ms/frame':>9s}")
     for s in scores:

@@ -1,9 +1,11 @@
 """Score the pipeline's per-object decisions on the synthetic street presets, where the truth is exact.
 
-For every preset and seed the scene is rendered, the pipeline runs over it frame by frame with the exact
-instance maps as its upstream instances (what `use_instances` gives the node), and every object-frame (an
-object with at least --min-area pixels in a frame, after the first --skip frames, before any refit) counts
-as flagged or not, for moving and for static objects apart. Prints a line per preset and seed (each object
+For every preset and seed the scene is rendered and the pipeline runs over it frame by frame. By default it
+gets no instances and finds the objects itself; an object-frame (an object with at least --min-area pixels
+in a frame, after the first --skip frames) counts as flagged when at least --cover of its pixels lie in the
+dynamic mask. With --instances (always for object_level) the exact instance maps are its upstream instances
+(what `use_instances` gives the node) and an object-frame is flagged when its id is among the frame's dynamic
+ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
 as name:flagged/seen, * = moving) and the totals; --json writes them.
 """
 
@@ -16,16 +18,19 @@ from pathlib import Path
 
 import numpy as np
 
-from moseg_ros.pipeline import FLOW_PRESETS, METHODS, Pipeline, PipelineConfig
+from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, render_sequence
 from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
 
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
-                min_area: int = 60, skip: int = 3) -> dict[str, dict[str, int | bool]]:
+                min_area: int = 60, skip: int = 3, instances: bool = True,
+                cover: float = 0.5) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
-    The height keeps KITTI's aspect ratio.
+    The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
+    id among the dynamic ids); otherwise flagged = at least ``cover`` of the object's pixels in the mask.
     """
     height = int(round(width * KITTI_HEIGHT / KITTI_WIDTH))
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
@@ -33,13 +38,17 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
     for t, frame in enumerate(sequence.frames):
-        result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances)
+        result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None)
         if t < skip:
             continue
         ids, areas = np.unique(frame.instances, return_counts=True)
-        for obj in ids[(ids > 0) & (areas >= min_area)].tolist():
+        covered = np.bincount(frame.instances.ravel(), weights=(result.masks.dynamic > 0).ravel(),
+                              minlength=ids.max() + 1)[ids] / areas
+        hit = np.isin(ids, result.dynamic_ids) if instances else covered >= cover
+        counted = (ids > 0) & (areas >= min_area)
+        for obj, flag in zip(ids[counted].tolist(), hit[counted].tolist()):
             seen[obj] += 1
-            flagged[obj] += int(obj in result.dynamic_ids)
+            flagged[obj] += int(flag)
     return {sequence.object_names[obj]: {"moving": obj in sequence.dynamic_ids, "flagged": flagged[obj],
                                          "seen": seen[obj]} for obj in sorted(seen)}
 
@@ -52,7 +61,9 @@ def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
             kind = "moving" if obj["moving"] else "static"
             out[f"{kind}_flagged"] += int(obj["flagged"])
             out[f"{kind}_seen"] += int(obj["seen"])
-    return {key: out[key] for key in ("moving_flagged", "moving_seen", "static_flagged", "static_seen")}
+    counts = {key: out[key] for key in ("moving_flagged", "moving_seen", "static_flagged", "static_seen")}
+    return {**counts, "moving_flagged_fraction": out["moving_flagged"] / max(out["moving_seen"], 1),
+            "static_flagged_fraction": out["static_flagged"] / max(out["static_seen"], 1)}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -62,9 +73,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 of every preset (default 2)")
     parser.add_argument("--frames", type=int, default=16)
     parser.add_argument("--width", type=int, default=621, help="image width; the height keeps KITTI's aspect ratio")
-    parser.add_argument("--method", choices=METHODS, default="object_level")
-    parser.add_argument("--flow-preset", choices=FLOW_PRESETS, default="auto")
-    parser.add_argument("--no-ground-contact", action="store_true", help="the paper's clusters alone")
+    parser.add_argument("--instances", action="store_true",
+                        help="give the pipeline the exact instance maps (always so for object_level)")
+    parser.add_argument("--cover", type=float, default=0.5,
+                        help="without --instances: share of an object's pixels in the mask that flags it")
+    add_settings_arguments(parser)  # e.g. --set flow_preset=fast, --set ground_contact=false
     parser.add_argument("--min-area", type=int, default=60, help="smallest object counted (pixels)")
     parser.add_argument("--skip", type=int, default=3, help="first frames not counted (no evidence yet)")
     parser.add_argument("--json", type=Path, help="write the per-scene rows and the totals here")
@@ -77,21 +90,26 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not presets or args.seeds < 1:
         print(f"moseg synth-eval: presets must be among {', '.join(PRESETS)} and --seeds >= 1")
         return 2
-    config = PipelineConfig(method=args.method, flow_preset=args.flow_preset,
-                            ground_contact=not args.no_ground_contact)
+    try:
+        config = pipeline_config(args)
+    except ValueError as error:
+        print(f"moseg synth-eval: error: {error}")
+        return 2
     rows, scenes = [], []
     for preset in presets:
         for seed in range(args.seeds):
             scene = score_scene(preset, seed, config, n_frames=args.frames, width=args.width,
-                                min_area=args.min_area, skip=args.skip)
+                                min_area=args.min_area, skip=args.skip, cover=args.cover,
+                                instances=args.instances or config.method == "object_level")
             scenes.append(scene)
             rows.append({"preset": preset, "seed": seed, "objects": scene})
             print(f"{preset:10s} {seed:2d}  " + " ".join(
                 f"{name}{'*' if o['moving'] else ''}:{o['flagged']}/{o['seen']}" for name, o in scene.items()))
     total = totals(scenes)
-    print(f"moving object-frames flagged {total['moving_flagged']}/{total['moving_seen']}, "
-          f"static object-frames flagged {total['static_flagged']}/{total['static_seen']} "
-          f"(method {args.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
+    print(f"moving object-frames flagged {total['moving_flagged']}/{total['moving_seen']} "
+          f"({100 * total['moving_flagged_fraction']:.1f} %), static object-frames flagged "
+          f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
+          f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
     if args.json:
         args.json.write_text(json.dumps({"totals": total, "scenes": rows}, indent=2))
     return 0

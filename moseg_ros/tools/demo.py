@@ -23,6 +23,7 @@ import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
 from moseg_ros.io.bags import read_images
+from moseg_ros.methods import DEFAULT_METHOD
 from moseg_ros.pipeline import METHODS
 from moseg_ros.synth.scenarios import build_scene
 from moseg_ros.synth.street import GT_TOPICS, render_frames, write_frames
@@ -104,7 +105,7 @@ def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[
 
 def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int = 0, frames: int = 60,
              domain_id: int = 42, regenerate: bool = False, rate: float = 1.0,
-             method: str = "epipolar_baseline") -> dict[str, Any]:
+             method: str = DEFAULT_METHOD) -> dict[str, Any]:
     """Render (if needed), replay through the node, score and picture; returns the summary written.
 
     With method object_level the node runs with use_instances:=true and the bag's exact instance maps
@@ -118,7 +119,7 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
     masks_bag = out_dir / "masks"
     shutil.rmtree(masks_bag, ignore_errors=True)
     object_level = method == "object_level"
-    params = ["method:=object_level", "use_instances:=true"] if object_level else []
+    params = [f"method:={method}"] + (["use_instances:=true"] if object_level else [])
     node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
         report = replay(bag, masks_bag, domain_id=domain_id, rate=rate,
@@ -162,7 +163,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="ROS domain id of the demo (default 42, or $MOSEG_DEMO_DOMAIN)")
     parser.add_argument("--regenerate", action="store_true", help="render the bag even if it exists")
     parser.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0 = 10 Hz)")
-    parser.add_argument("--method", choices=METHODS, default="epipolar_baseline",
+    parser.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
                         help="object_level: the node gets the bag's exact instance maps as upstream instances")
 
 

@@ -16,6 +16,7 @@ from typing import Any
 
 from moseg_ros.io.bags import BagWriter, read_images
 from moseg_ros.io.frames import decode_frame
+from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 OUTPUT_PREFIX = "/segmenter"
@@ -67,12 +68,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=Path, required=True, help="output rosbag2 MCAP folder")
     parser.add_argument("--topic", help="image topic (default: the bag's one camera image topic)")
     parser.add_argument("--no-progress", action="store_true", help="do not print per-frame progress")
+    add_settings_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag and print the counts; exit 1 when a frame was skipped, 2 when the bag cannot be used."""
     try:
-        counts = process_bag(args.bag, args.output, image_topic=args.topic, progress=not args.no_progress)
+        counts = process_bag(args.bag, args.output, image_topic=args.topic, config=pipeline_config(args),
+                             progress=not args.no_progress)
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         print(f"moseg process: error: {error}", file=sys.stderr)
         return 2

@@ -1,0 +1,165 @@
+"""A weight-free motion front-end: frames -> regions that move by themselves, with ids stable over time.
+
+Two kinds of evidence, both residuals of the camera's own (dominant) rigid motion:
+
+- sparse: KLT tracks over a causal window; a track moves when its epipolar distance, a median over the
+  window's frame pairs, stands out (core/track_motion.py). A track flagged in ``sticky_windows`` windows stays
+  flagged while it lives. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
+  group of ``min_group`` or more fills its convex hull.
+- dense: DIS flow between the frame and the one ``gap`` frames back, forward-backward checked; pixels far
+  from the dominant epipolar geometry (core/baseline.py), cleaned by a morphological open and close, regions
+  of ``min_region_area`` pixels or more.
+
+The union of the two is split into connected regions, and the InstanceTracker gives them persistent ids.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
+from moseg_ros.core.track_motion import TrackMotionConfig, moving_tracks, pair_residual
+from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
+
+
+@dataclass(frozen=True)
+class MotionFrontEndConfig:
+    """Settings of the motion front-end (pixels at the working resolution unless a fraction of the width)."""
+
+    window_length: int = 8
+    tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000))
+    track_motion: TrackMotionConfig = field(default_factory=TrackMotionConfig)
+    sticky_windows: int = 2
+    link_fraction: float = 0.032
+    min_group: int = 4
+    dense: bool = True
+    dense_gap: int = 1
+    dense_width: int = 640
+    dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
+        residual_threshold_px=1.0, residual_noise_factor=5.0))
+    min_region_area: int = 80
+    min_texture: float = 1e-3
+    close_px: int = 5
+
+
+def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int) -> np.ndarray:
+    """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more.
+
+    Args:
+        points: (N, 2) positions (x, y).
+        shape: (H, W) of the mask.
+        link_px: largest distance between two linked points.
+        min_group: smallest group that makes a region.
+
+    Returns:
+        (H, W) bool mask.
+    """
+    mask = np.zeros(shape, dtype=np.uint8)
+    if len(points) < min_group:
+        return mask.astype(bool)
+    pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    _, group = connected_components(graph, directed=False)
+    sizes = np.bincount(group)
+    for g in np.flatnonzero(sizes >= min_group):
+        hull = cv2.convexHull(np.rint(points[group == g]).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 1)
+    return mask.astype(bool)
+
+
+class MotionFrontEnd:
+    """Turns a stream of grey frames into moving regions with persistent ids."""
+
+    def __init__(self, config: MotionFrontEndConfig = MotionFrontEndConfig(), flow: DenseFlow | None = None) -> None:
+        self.config = config
+        self._points = PointTracker(config.tracks)
+        self._flow = flow or DenseFlow("fast")
+        self._regions = InstanceTracker()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every frame, track and region."""
+        self._points.reset()
+        self._regions.reset()
+        self._frames: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
+            maxlen=self.config.track_motion.gap + 1)
+        # One (track ids, distances) per frame pair (m, m + gap) of the window: each pair is fitted once.
+        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
+            maxlen=self.config.window_length - self.config.track_motion.gap)
+        self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
+        self._flag_count: dict[int, int] = {}
+        self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
+        self.moving = np.zeros((0, 0), dtype=bool)
+
+    def update(self, gray: np.ndarray) -> np.ndarray:
+        """Take the next frame ((H, W) uint8); returns (H, W) int32 moving regions with persistent ids.
+
+        ``moving`` then holds the frame's (H, W) bool evidence (hulls and dense residual) before grouping, and
+        ``moving_track_points`` the (M, 2) positions of its moving tracks."""
+        self._points.update(gray)
+        self._frames.append((self._points.ids.copy(), self._points.points.copy()))
+        small = self._dense_size(gray.shape)
+        self._grays.append(cv2.resize(gray, small[::-1], interpolation=cv2.INTER_AREA) if small != gray.shape
+                           else gray)
+        moving = self._sparse_mask(gray.shape)
+        if self.config.dense and len(self._grays) > self.config.dense_gap:
+            dense = self._dense_mask(self._grays[0], self._grays[-1])
+            moving |= cv2.resize(dense.astype(np.uint8), gray.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+        self.moving = moving
+        regions = propose_regions(moving, self.config.min_region_area, self.config.close_px)
+        return self._regions.update(regions)
+
+    def _dense_size(self, shape: tuple[int, int]) -> tuple[int, int]:
+        scale = min(1.0, self.config.dense_width / shape[1])
+        return max(32, round(shape[0] * scale)), max(32, round(shape[1] * scale))
+
+    def _flagged_now(self) -> np.ndarray:
+        """Ids of the current frame's tracks that move (this window, or sticky from earlier windows)."""
+        self._fit_newest_pair()
+        if not self._pairs:
+            return np.zeros(0, dtype=np.int64)
+        ids = np.unique(np.concatenate([i for i, _ in self._pairs]))
+        residuals = np.full((ids.size, len(self._pairs)), np.nan, dtype=np.float32)
+        for m, (pair_ids, distance) in enumerate(self._pairs):
+            residuals[np.searchsorted(ids, pair_ids), m] = distance
+        flagged = ids[moving_tracks(residuals, self.config.track_motion)]
+        for i in flagged.tolist():
+            self._flag_count[i] = self._flag_count.get(i, 0) + 1
+        alive = set(self._points.ids.tolist())
+        self._flag_count = {i: c for i, c in self._flag_count.items() if i in alive}
+        sticky = np.array([i for i, c in self._flag_count.items() if c >= self.config.sticky_windows], dtype=np.int64)
+        return np.union1d(flagged, sticky)
+
+    def _fit_newest_pair(self) -> None:
+        if len(self._frames) <= self.config.track_motion.gap:
+            return
+        (ids1, x1), (ids2, x2) = self._frames[0], self._frames[-1]
+        both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
+        distance = pair_residual(x1[i1], x2[i2], self.config.track_motion)
+        if distance is not None:
+            self._pairs.append((both, distance))
+
+    def _sparse_mask(self, shape: tuple[int, int]) -> np.ndarray:
+        flagged = self._flagged_now()
+        here = np.isin(self._points.ids, flagged)
+        self.moving_track_points = self._points.points[here]
+        return hull_mask(self.moving_track_points, shape, self.config.link_fraction * shape[1],
+                         self.config.min_group)
+
+    def _dense_mask(self, earlier: np.ndarray, gray: np.ndarray) -> np.ndarray:
+        evidence = epipolar_residual(self._flow(gray, earlier), self._flow(earlier, gray), self.config.dense_baseline)
+        if evidence.fundamental is None:
+            return np.zeros(gray.shape, dtype=bool)
+        moving = (evidence.residual > evidence.threshold) & evidence.valid
+        if self.config.min_texture > 0:
+            moving &= cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture
+        return moving

@@ -1,0 +1,63 @@
+"""What every method takes and returns, and the status vocabulary the pipeline, node and tools share."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, ClassVar, Protocol
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from moseg_ros.pipeline import PipelineConfig
+
+
+class Status(str, enum.Enum):
+    """Why a frame's mask looks as it does; the pipeline adds a free-text reason to some."""
+
+    OK = "ok"
+    WARMUP = "warmup"            # no motion evidence yet (first frames of a stream)
+    NO_GEOMETRY = "no_geometry"  # the camera's motion could not be estimated: nothing flagged
+    NO_INSTANCES = "no_instances"  # a method that needs upstream instances got none for this frame
+    RESET = "reset"              # the window was cleared before this frame (reason: why)
+    TOO_SMALL = "too_small"      # below the minimum working size: empty mask
+    FAILED = "failed"            # the method raised (reason: the error): empty mask, window cleared
+
+
+@dataclass
+class FrameInput:
+    """One frame as a method sees it.
+
+    Attributes:
+        gray: (h, w) uint8 frame at the working resolution.
+        full: (H, W) uint8 frame at the input resolution (for methods that track at their own resolution).
+        instances: (h, w) int32 upstream instance ids at the working resolution, or None.
+    """
+
+    gray: np.ndarray
+    full: np.ndarray
+    instances: np.ndarray | None = None
+
+
+@dataclass
+class Decision:
+    """A method's answer for one frame: labels at the working resolution and which of them move."""
+
+    labels: np.ndarray
+    dynamic_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    status: Status = Status.OK
+
+
+class Method(Protocol):
+    """A small stateful segmenter; ``name`` is the value of the node's ``method`` parameter."""
+
+    name: ClassVar[str]
+    flow_preset: ClassVar[str]  # the DIS preset that flow_preset ``auto`` stands for with this method
+
+    def __init__(self, config: PipelineConfig) -> None: ...
+
+    def reset(self) -> None:
+        """Forget the stream (the next frame starts a new one)."""
+
+    def step(self, frame: FrameInput) -> Decision:
+        """Decide one frame."""

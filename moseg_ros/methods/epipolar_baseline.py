@@ -1,0 +1,60 @@
+"""``epipolar_baseline``: one dominant epipolar geometry between consecutive frames, per-pixel residuals.
+
+Pixels far from the dominant geometry (core/baseline.py) form regions that the InstanceTracker keeps by id; a
+region is flagged once it persists ``min_persistence`` frames. With upstream instances, an instance is flagged
+when ``instance_min_fraction`` of its reliable pixels move. Blind to motion inside the epipolar plane.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from moseg_ros.core.baseline import dynamic_instances, epipolar_residual
+from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.methods.base import Decision, FrameInput, Status
+
+if TYPE_CHECKING:
+    from moseg_ros.pipeline import PipelineConfig
+
+
+class EpipolarBaseline:
+    """Dominant-F residual per pixel, regions tracked by id."""
+
+    name = "epipolar_baseline"
+    flow_preset = "fast"
+
+    def __init__(self, config: PipelineConfig) -> None:
+        self.config = config
+        self._flow = DenseFlow(config.dis_preset())
+        self._regions = InstanceTracker()
+        self._baseline = config.baseline()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous frame and every region."""
+        self._previous: np.ndarray | None = None
+        self._regions.reset()
+
+    def step(self, frame: FrameInput) -> Decision:
+        """Residuals against the previous frame; regions or upstream instances flagged."""
+        previous, self._previous = self._previous, frame.gray
+        if previous is None:
+            return Decision(np.zeros(frame.gray.shape, dtype=np.int32), status=Status.WARMUP)
+        labels, ids, found = self.decide(previous, frame.gray, frame.instances)
+        return Decision(labels, ids, Status.OK if found else Status.NO_GEOMETRY)
+
+    def decide(self, previous: np.ndarray, gray: np.ndarray,
+               instances: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, bool]:
+        """(labels, dynamic ids, whether the geometry was found) for ``gray`` against ``previous``."""
+        evidence = epipolar_residual(self._flow(gray, previous), self._flow(previous, gray), self._baseline)
+        moving = evidence.residual > evidence.threshold
+        if instances is not None:
+            ids = dynamic_instances(instances, moving, evidence.valid, self.config.instance_min_fraction)
+            return instances, ids, evidence.fundamental is not None
+        labels = self._regions.update(propose_regions(moving, self.config.min_region_area))
+        ids = np.array(sorted(i for i, age in self._regions.ages.items()
+                              if age >= self.config.min_persistence), dtype=np.int32)
+        return labels, ids, evidence.fundamental is not None

@@ -1,0 +1,78 @@
+"""``moving_objects`` (the default): finds the moving objects itself, with no weights and no instances.
+
+The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave
+the camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex
+hulls, united with a dense epipolar residual mask at the working resolution; regions keep their ids over
+time. Every region the front-end reports is flagged as moving. With upstream instances, they are the
+objects instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's
+evidence.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from moseg_ros.core.baseline import dynamic_instances
+from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig
+from moseg_ros.frontend.tracks import TrackerConfig
+from moseg_ros.methods.base import Decision, FrameInput, Status
+
+if TYPE_CHECKING:
+    from moseg_ros.pipeline import PipelineConfig
+
+
+def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
+    """The front-end's settings from the pipeline's (one declaration per setting: PipelineConfig)."""
+    base = MotionFrontEndConfig()
+    return replace(base, window_length=config.window_length,
+                   tracks=replace(base.tracks, max_points=config.max_tracks),
+                   dense_width=config.working_width, min_region_area=config.min_region_area)
+
+
+class MovingObjects:
+    """Weight-free moving-object regions from sparse and dense epipolar evidence."""
+
+    name = "moving_objects"
+    flow_preset = "fast"
+
+    def __init__(self, config: PipelineConfig) -> None:
+        self.config = config
+        self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track and region."""
+        self._front_end.reset()
+        self._frames = 0
+
+    def step(self, frame: FrameInput) -> Decision:
+        """Track, test and group; the front-end's regions are the moving objects."""
+        labels = self._front_end.update(self._tracking_frame(frame.full))
+        self._frames += 1
+        if frame.instances is not None:
+            return self._decide_instances(frame.instances)
+        if self._frames == 1:
+            return Decision(labels, status=Status.WARMUP)
+        return Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
+
+    def _decide_instances(self, instances: np.ndarray) -> Decision:
+        if self._frames == 1:
+            return Decision(instances, status=Status.WARMUP)
+        evidence = cv2.resize(self._front_end.moving.astype(np.uint8), instances.shape[::-1],
+                              interpolation=cv2.INTER_NEAREST) > 0
+        everywhere = np.ones(instances.shape, dtype=bool)
+        return Decision(instances, dynamic_instances(instances, evidence, everywhere,
+                                                     self.config.instance_min_fraction))
+
+    def _tracking_frame(self, full: np.ndarray) -> np.ndarray:
+        height, width = full.shape
+        scale = min(1.0, self.config.track_width / width)
+        if scale == 1.0:
+            return full
+        size = (max(32, round(width * scale)), max(32, round(height * scale)))
+        return cv2.resize(full, size, interpolation=cv2.INTER_AREA)

@@ -1,0 +1,155 @@
+"""One schema of every setting: default, range or choices, and description, declared once.
+
+Settings are dataclass fields declared with ``setting(...)``: the pipeline's in ``pipeline.PipelineConfig``,
+the node's own (QoS, queue, diagnostics) in ``NodeSettings`` below. Everything else derives from them: the
+node's parameter descriptors and validation, the check of ``config/segmenter.yaml``, the README's parameter
+table (checked by a test), and every tool's ``--params FILE`` / ``--set NAME=VALUE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import yaml
+
+QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What the schema knows of one setting."""
+
+    name: str
+    default: Any
+    description: str
+    low: float | None = None
+    high: float | None = None
+    choices: tuple[str, ...] = ()
+
+    def check(self, value: Any) -> None:
+        """Raise ValueError naming the setting when ``value`` has the wrong type or is out of range."""
+        kind = type(self.default)
+        if kind is float and isinstance(value, int) and not isinstance(value, bool):
+            value = float(value)
+        if type(value) is not kind:
+            raise ValueError(f"{self.name} must be a {kind.__name__}, got {value!r}")
+        if self.choices and value not in self.choices:
+            raise ValueError(f"{self.name} {value!r} is not one of {list(self.choices)}")
+        if self.low is not None and not self.low <= value <= self.high:
+            raise ValueError(f"{self.name} {value} must be within {self.low}..{self.high}")
+
+    def parse(self, text: str) -> Any:
+        """The value of ``text`` (from ``--set``) in this setting's type."""
+        kind = type(self.default)
+        if kind is bool:
+            if text.lower() not in ("true", "false"):
+                raise ValueError(f"{self.name} must be true or false, got {text!r}")
+            return text.lower() == "true"
+        try:
+            return kind(text)
+        except ValueError:
+            raise ValueError(f"{self.name} must be a {kind.__name__}, got {text!r}") from None
+
+
+def setting(default: Any, description: str, *, low: float | None = None, high: float | None = None,
+            choices: Sequence[str] = ()) -> Any:
+    """A dataclass field that is also an entry of the schema."""
+    meta = {"description": description, "low": low, "high": high, "choices": tuple(choices)}
+    return dataclasses.field(default=default, metadata={"setting": meta})
+
+
+def settings_of(cls: type) -> list[Setting]:
+    """The schema entries of a dataclass's ``setting(...)`` fields, in declaration order."""
+    return [Setting(f.name, f.default, **f.metadata["setting"]) for f in dataclasses.fields(cls)
+            if "setting" in f.metadata]
+
+
+def check_all(instance: Any) -> None:
+    """Check every schema field of a dataclass instance; raise ValueError naming the first bad one."""
+    for entry in settings_of(type(instance)):
+        entry.check(getattr(instance, entry.name))
+
+
+@dataclass(frozen=True)
+class NodeSettings:
+    """The node's own settings (transport, queue, diagnostics); the method's are in PipelineConfig."""
+
+    image_qos: str = setting("sensor_data", "QoS of the image subscription", choices=QOS_CHOICES)
+    qos_depth: int = setting(5, "history depth of the input subscriptions", low=1, high=100)
+    compressed_input: bool = setting(False, "subscribe `image` as sensor_msgs/CompressedImage")
+    use_instances: bool = setting(False, "pair each image with an upstream instance-id image on `instances`")
+    instances_timeout_s: float = setting(0.2, "how long a frame waits for its instance image", low=0.0, high=5.0)
+    queue_size: int = setting(4, "frames waiting for the worker; the oldest is dropped on overflow",
+                              low=1, high=100)
+    diagnostics_period_s: float = setting(1.0, "period of /diagnostics", low=0.1, high=60.0)
+    warn_throttle_s: float = setting(5.0, "minimum time between repeated warnings of one kind", low=0.0,
+                                     high=600.0)
+
+
+def all_settings() -> list[Setting]:
+    """Every setting of the node: its own, then the pipeline's."""
+    from moseg_ros.pipeline import PipelineConfig
+
+    return settings_of(NodeSettings) + settings_of(PipelineConfig)
+
+
+def read_parameter_file(path: Path) -> dict[str, Any]:
+    """The ``ros__parameters`` of a node's YAML file (``segmenter:`` or ``/**:`` as the top key)."""
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    for node in data.values():
+        if isinstance(node, dict) and isinstance(node.get("ros__parameters"), dict):
+            return dict(node["ros__parameters"])
+    raise ValueError(f"{path}: no `<node>: ros__parameters:` section")
+
+
+def apply_overrides(values: dict[str, Any], overrides: Iterable[str], schema: list[Setting]) -> dict[str, Any]:
+    """``values`` with every ``NAME=VALUE`` of ``overrides`` parsed in its setting's type."""
+    by_name = {entry.name: entry for entry in schema}
+    out = dict(values)
+    for item in overrides:
+        name, sep, text = item.partition("=")
+        if not sep or name not in by_name:
+            raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of {sorted(by_name)}")
+        out[name] = by_name[name].parse(text)
+    return out
+
+
+def add_settings_arguments(parser: argparse.ArgumentParser, method: bool = True) -> None:
+    """``--params FILE`` (the node's YAML), ``--set NAME=VALUE`` (repeatable) and, unless the tool fixes it,
+    ``--method NAME`` (short for --set method=NAME); read by ``pipeline_config``."""
+    from moseg_ros.methods import METHODS
+
+    if method:
+        parser.add_argument("--method", choices=sorted(METHODS), default=None,
+                            help="motion decision method (default: the file's, else the node's default)")
+    parser.add_argument("--params", type=Path, metavar="FILE",
+                        help="the node's parameter file (config/segmenter.yaml layout); node-only keys are ignored")
+    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                        help="override one pipeline setting, e.g. --set method=epipolar_baseline (repeatable)")
+
+
+def pipeline_config(args: argparse.Namespace, **fixed: Any) -> Any:
+    """The PipelineConfig of a tool's ``--params`` / ``--set`` (and the tool's own ``fixed`` choices).
+
+    Raises:
+        ValueError: an unknown name, a value of the wrong type or out of range.
+    """
+    from moseg_ros.pipeline import PipelineConfig
+
+    schema = settings_of(PipelineConfig)
+    names = {entry.name for entry in schema}
+    values = read_parameter_file(args.params) if getattr(args, "params", None) else {}
+    unknown = set(values) - names - {entry.name for entry in settings_of(NodeSettings)}
+    if unknown:
+        raise ValueError(f"{args.params}: unknown parameters {sorted(unknown)}")
+    values = {name: value for name, value in values.items() if name in names}
+    if getattr(args, "method", None):
+        values["method"] = args.method
+    values = apply_overrides({**values, **fixed}, getattr(args, "set", []), schema)
+    config = PipelineConfig(**values)
+    config.validate()
+    return config

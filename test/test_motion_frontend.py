@@ -1,0 +1,69 @@
+"""The weight-free motion front-end: hulls of linked moving tracks, and regions that cover the mover only."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from conftest import textured_frames
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, hull_mask
+
+
+def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
+    truth = np.zeros((height, width), dtype=bool)
+    y = height // 6 + speed * index
+    truth[y:y + height // 3, width // 4:width // 4 + width // 8] = True
+    return truth
+
+
+class TestHullMask:
+    def test_four_corners_fill_their_square(self):
+        points = np.array([[10, 10], [30, 10], [30, 30], [10, 30]], dtype=np.float32)
+        mask = hull_mask(points, (50, 50), link_px=25, min_group=4)
+        assert mask.dtype == bool and mask.shape == (50, 50)
+        assert mask[10:31, 10:31].all() and mask.sum() == 21 * 21
+
+    def test_far_groups_stay_apart_and_small_groups_are_dropped(self):
+        square = np.array([[0, 0], [8, 0], [8, 8], [0, 8]], dtype=np.float32)
+        points = np.vstack([square + 5, square + 60, [[100, 10], [104, 12]]])
+        mask = hull_mask(points, (80, 120), link_px=12, min_group=4)
+        assert mask[5:14, 5:14].all() and mask[60:69, 60:69].all()
+        assert not mask[20:55, 20:55].any() and not mask[:, 90:].any()
+
+    def test_fewer_points_than_a_group_give_an_empty_mask(self):
+        assert not hull_mask(np.zeros((3, 2), np.float32), (10, 10), 5, 4).any()
+
+
+class TestMotionFrontEnd:
+    def test_the_sliding_block_becomes_one_region_and_the_pan_none(self):
+        front_end = MotionFrontEnd(MotionFrontEndConfig(tracks=MotionFrontEndConfig().tracks))
+        ious, outside = [], []
+        ids = set()
+        for i, frame in enumerate(textured_frames(10)):
+            labels = front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+            assert labels.shape == frame.shape[:2] and labels.dtype == np.int32
+            if i >= 3:
+                truth = block_truth(i)
+                found = labels > 0
+                ious.append((found & truth).sum() / (found | truth).sum())
+                outside.append((found & ~truth).mean())
+                ids |= set(np.unique(labels[truth & found]).tolist())
+        assert np.mean(ious) > 0.6, ious
+        assert np.mean(outside) < 0.02
+        assert len(ids) == 1  # one object, one id over the frames
+
+    def test_moving_tracks_lie_on_the_block(self):
+        front_end = MotionFrontEnd()
+        for frame in textured_frames(6):
+            front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+        xy = np.rint(front_end.moving_track_points).astype(int)
+        assert len(xy) > 10
+        assert block_truth(5)[xy[:, 1], xy[:, 0]].mean() > 0.9
+
+    def test_reset_forgets_the_stream(self):
+        front_end = MotionFrontEnd()
+        for frame in textured_frames(4):
+            front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+        front_end.reset()
+        labels = front_end.update(cv2.cvtColor(textured_frames(1)[0], cv2.COLOR_RGB2GRAY))
+        assert not labels.any() and len(front_end.moving_track_points) == 0
