@@ -113,8 +113,10 @@ class SegmenterNode(Node):
     def _check_choices(self) -> None:
         for name, value in self.settings.items():
             SCHEMA[name].check(value)
-        if self.settings["method"] == "object_level" and not self.settings["use_instances"]:
-            raise ValueError("method object_level segments instances: set use_instances:=true and remap `instances`")
+        if (self.settings["method"] == "object_level" and not self.settings["use_instances"]
+                and not self.settings["instance_model"]):
+            raise ValueError("method object_level segments instances: set use_instances:=true and remap "
+                             "`instances`, or give an instance_model")
 
     def _pipeline_config(self) -> PipelineConfig:
         return PipelineConfig(**{name: self.settings[name] for name in PIPELINE_NAMES})

@@ -19,6 +19,7 @@ import numpy as np
 
 from moseg_ros.core.baseline import BaselineConfig
 from moseg_ros.frontend.flow import DIS_PRESETS
+from moseg_ros.frontend.torch_instances import TorchScriptInstances
 from moseg_ros.io.image import to_gray
 from moseg_ros.methods import DEFAULT_METHOD, METHODS as METHOD_CLASSES
 from moseg_ros.methods.base import FrameInput, Status
@@ -59,6 +60,8 @@ class PipelineConfig:
     ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "
                                    "their foot slides over it")
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
+    instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
+                                  "(empty: none; see frontend/torch_instances.py); upstream instances win")
 
     def dis_preset(self) -> str:
         """The DIS preset that flow_preset stands for (auto: by method)."""
@@ -110,6 +113,7 @@ class Pipeline:
         config.validate()
         self.config = config
         self.method = METHOD_CLASSES[config.method](config)
+        self._instance_model = TorchScriptInstances(config.instance_model) if config.instance_model else None
         self._last_stamp: int | None = None
         self._input_size: tuple[int, int] | None = None
         self.resets = 0
@@ -119,6 +123,8 @@ class Pipeline:
         self._last_stamp = None
         self._input_size = None
         self.method.reset()
+        if self._instance_model is not None:
+            self._instance_model.reset()
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
         # Downscale to working_width, but never below MIN_WORKING_SIDE on a side that is at least that long.
@@ -139,7 +145,8 @@ class Pipeline:
         Args:
             image: (H, W) grey or (H, W, 3) rgb uint8 frame.
             stamp_ns: the frame's stamp; a stamp not after the previous one resets the window.
-            instances: optional (H, W) int upstream instance ids for this frame (0 = none).
+            instances: optional (H, W) int upstream instance ids for this frame (0 = none); without them, the
+                ``instance_model``'s, when one is set.
 
         Returns:
             The frame's masks and status.
@@ -158,6 +165,8 @@ class Pipeline:
             self.reset()
             self.resets += 1
         try:
+            if instances is None and self._instance_model is not None:
+                instances = self._instance_model(image)
             decision = self.method.step(self._frame_input(image, instances))
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
             self.reset()
