@@ -88,6 +88,7 @@ class SegmenterNode(Node):
         self._wake = threading.Condition()
         self._running = True
         self.camera_matrix: np.ndarray | None = None
+        self._camera_size: tuple[int, int] = (0, 0)
         self._last_warning: dict[str, float] = {}
 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -151,9 +152,16 @@ class SegmenterNode(Node):
             self._wake.notify()
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
-        # Kept for calibrated methods; without it every method runs uncalibrated (fundamental matrices).
+        # moving_objects uses K for its cheirality test; without it (or for another image size) K is guessed.
         k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-        self.camera_matrix = k if k[0, 0] > 0 and k[1, 1] > 0 else None
+        self.camera_matrix = k if k[0, 0] > 0 and k[1, 1] > 0 and np.isfinite(k).all() else None
+        self._camera_size = (msg.height, msg.width)
+
+    def _camera_matrix_for(self, frame: np.ndarray) -> np.ndarray | None:
+        """camera_info's K when its image size is the frame's (a K for another size would mislead)."""
+        if self.camera_matrix is None or self._camera_size != frame.shape[:2]:
+            return None
+        return self.camera_matrix
 
     def _on_instances(self, msg: Image) -> None:
         key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
@@ -205,7 +213,7 @@ class SegmenterNode(Node):
             self._warn("bad_instances", f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        result = self.pipeline.process(frame, stamp_ns, instances)
+        result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame))
         kind = result.status.split(":")[0]
         self.statuses[kind] += 1
         if kind == "reset":

@@ -139,7 +139,8 @@ class Pipeline:
             return "time went backwards" if stamp_ns < self._last_stamp else "repeated stamp"
         return None
 
-    def process(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None = None) -> FrameResult:
+    def process(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None = None,
+                camera_matrix: np.ndarray | None = None) -> FrameResult:
         """Segment one frame.
 
         Args:
@@ -147,6 +148,7 @@ class Pipeline:
             stamp_ns: the frame's stamp; a stamp not after the previous one resets the window.
             instances: optional (H, W) int upstream instance ids for this frame (0 = none); without them, the
                 ``instance_model``'s, when one is set.
+            camera_matrix: optional (3, 3) K of the camera at the image's size (camera_info).
 
         Returns:
             The frame's masks and status.
@@ -167,7 +169,7 @@ class Pipeline:
         try:
             if instances is None and self._instance_model is not None:
                 instances = self._instance_model(image)
-            decision = self.method.step(self._frame_input(image, instances))
+            decision = self.method.step(self._frame_input(image, instances, camera_matrix))
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
             self.reset()
             return self._empty(stamp_ns, size, Status.FAILED,
@@ -178,13 +180,14 @@ class Pipeline:
         return FrameResult(stamp_ns, masks, kind, decision.dynamic_ids, time.perf_counter() - start,
                            reason=reason or "")
 
-    def _frame_input(self, image: np.ndarray, instances: np.ndarray | None) -> FrameInput:
+    def _frame_input(self, image: np.ndarray, instances: np.ndarray | None,
+                     camera_matrix: np.ndarray | None) -> FrameInput:
         full = to_gray(image, "mono8" if image.ndim == 2 else "rgb8")
         h, w = self._working_size(*full.shape)
         gray = cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA) if (h, w) != full.shape else full
         if instances is not None:
             instances = cv2.resize(instances.astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
-        return FrameInput(gray=gray, full=full, instances=instances)
+        return FrameInput(gray=gray, full=full, instances=instances, camera_matrix=camera_matrix)
 
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
         masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)

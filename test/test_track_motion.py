@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from moseg_ros.core.track_motion import TrackMotionConfig, moving_tracks, pair_residual, pair_residuals
+from moseg_ros.core.track_motion import (TrackMotionConfig, guessed_camera_matrix, moving_tracks, pair_evidence,
+                                         pair_residual, pair_residuals)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -92,3 +93,65 @@ def test_a_planar_pan_uses_the_homography_so_the_mover_stands_out():
     x2[:30] = x1[:30] + [0.0, 3.0]
     distance = pair_residual(x1, x2 + rng.normal(0, 0.1, x2.shape))
     assert np.median(distance[:30]) > 2.0 and np.median(distance[30:]) < 0.3
+
+
+def car_ahead(frames: int = 6, seed: int = 0):
+    """Tracks of the street above with, instead of the crossing block, a car 8-10 m ahead in the next lane
+    driving in the camera's own direction at twice its speed: it pulls away along the epipolar lines, so its Sampson distance
+    is ~0, but it lies 'behind infinity' (negative parallax). Returns tracks (N, F, 2), is_car (N,)."""
+    rng = np.random.default_rng(seed)
+    tracks, _ = street(n_mover=0, frames=frames, seed=seed)
+    car = np.column_stack([rng.uniform(1.5, 3.5, 40), rng.uniform(-0.5, 1, 40), rng.uniform(8, 10, 40)])
+    velocity = 2.0 * np.array([0.05, 0.0, 1.0])
+    car_tracks = np.stack([project(car + velocity * t, np.array([0.05 * t, 0.0, 1.0 * t])) for t in range(frames)],
+                          axis=1) + rng.normal(0, 0.2, (40, frames, 2))
+    return np.vstack([tracks, car_tracks]).astype(np.float32), np.r_[np.zeros(len(tracks), bool), np.ones(40, bool)]
+
+
+def _window_evidence(tracks, K, config=TrackMotionConfig()):
+    residuals = np.full((len(tracks), tracks.shape[1] - 2), np.nan, np.float32)
+    signed = np.full_like(residuals, np.nan)
+    for m in range(residuals.shape[1]):
+        distance, parallax = pair_evidence(tracks[:, m], tracks[:, m + 2], config, K)
+        residuals[:, m] = distance
+        if parallax is not None:
+            signed[:, m] = parallax
+    return residuals, signed
+
+
+class TestCheirality:
+    def test_the_car_pulling_away_ahead_is_caught_by_cheirality_and_missed_by_the_residual(self):
+        tracks, car = car_ahead()
+        residuals, signed = _window_evidence(tracks, K)
+        assert not moving_tracks(residuals)[car].any()  # inside the epipolar plane: no residual
+        flagged = moving_tracks(residuals, signed=signed)
+        assert flagged[car].mean() > 0.9 and flagged[~car].mean() < 0.01
+
+    def test_a_guessed_camera_matrix_gives_the_same_decision(self):
+        tracks, car = car_ahead(seed=1)
+        residuals, signed = _window_evidence(tracks, guessed_camera_matrix((240, 640)))
+        flagged = moving_tracks(residuals, signed=signed)
+        assert flagged[car].mean() > 0.9 and flagged[~car].mean() < 0.01
+
+    def test_static_points_at_strong_parallax_have_positive_parallax(self):
+        tracks, _ = street(n_mover=0)
+        _, parallax = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
+        assert parallax.shape == (len(tracks),) and np.mean(parallax > -1.0) > 0.99
+        assert np.percentile(parallax, 90) > 5.0  # near points: strong parallax, and of the right sign
+
+    def test_a_pure_rotation_decides_no_sign(self):
+        rng = np.random.default_rng(2)
+        x1 = rng.uniform([0, 0], [640, 240], (300, 2))
+        angle = np.deg2rad(1.0)
+        rotation = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+        moved = (K @ rotation @ np.linalg.inv(K) @ np.c_[x1, np.ones(300)].T).T
+        x2 = moved[:, :2] / moved[:, 2:] + rng.normal(0, 0.1, (300, 2))
+        evidence = pair_evidence(x1, x2, TrackMotionConfig(), K)
+        assert evidence is not None and evidence[1] is None  # the homography branch: no translation, no sign
+
+
+def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_give_no_sign():
+    tracks, _ = street(n_mover=0)
+    strict = TrackMotionConfig(guessed_max_rotation_deg=0.0)  # every real pair turns a little
+    assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)[1] is not None
+    assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)[1] is None

@@ -60,8 +60,19 @@ class EpipolarResidual:
 
 
 def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """(N,) Sampson distance in pixels of N correspondences (matches^T F points = 0) under one F."""
-    return np.sqrt(geometry.sampson_distance(fundamental[None], points, matches)[0])
+    """(N,) Sampson distance in pixels of N correspondences (matches^T F points = 0) under one F.
+
+    The one-model case of geometry.sampson_distance, written out in float32: it runs on every pixel of a
+    frame, where the batched form's homogeneous copies cost more than the arithmetic.
+    """
+    F = fundamental.astype(np.float32)
+    x, y = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
+    u, v = matches[:, 0].astype(np.float32), matches[:, 1].astype(np.float32)
+    line = [F[i, 0] * x + F[i, 1] * y + F[i, 2] for i in range(3)]      # F x
+    back = [F[0, i] * u + F[1, i] * v + F[2, i] for i in range(2)]      # first two of F^T x'
+    numerator = u * line[0] + v * line[1] + line[2]
+    denominator = line[0] ** 2 + line[1] ** 2 + back[0] ** 2 + back[1] ** 2
+    return np.abs(numerator) / np.sqrt(np.maximum(denominator, 1e-30))
 
 
 def homography_distance(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:

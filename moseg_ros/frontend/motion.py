@@ -3,7 +3,8 @@
 Two kinds of evidence, both residuals of the camera's own (dominant) rigid motion:
 
 - sparse: KLT tracks over a causal window; a track moves when its epipolar distance, a median over the
-  window's frame pairs, stands out (core/track_motion.py). A track flagged in ``sticky_windows`` windows stays
+  window's frame pairs, stands out, or when its median signed parallax says it lies behind the camera
+  (cheirality with a guessed K, core/track_motion.py). A track flagged in ``sticky_windows`` windows stays
   flagged while it lives. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
   group of ``min_group`` or more fills its convex hull.
 - dense: DIS flow between the frame and the one ``gap`` frames back, forward-backward checked; pixels far
@@ -25,7 +26,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
-from moseg_ros.core.track_motion import TrackMotionConfig, moving_tracks, pair_residual
+from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix, moving_tracks, pair_evidence
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -92,46 +93,53 @@ class MotionFrontEnd:
         self._regions.reset()
         self._frames: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
             maxlen=self.config.track_motion.gap + 1)
-        # One (track ids, distances) per frame pair (m, m + gap) of the window: each pair is fitted once.
-        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
+        # One (track ids, distances, signed parallax or None) per frame pair (m, m + gap) of the window:
+        # each pair is fitted once.
+        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
         self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
         self._flag_count: dict[int, int] = {}
         self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
         self.moving = np.zeros((0, 0), dtype=bool)
 
-    def update(self, gray: np.ndarray) -> np.ndarray:
-        """Take the next frame ((H, W) uint8); returns (H, W) int32 moving regions with persistent ids.
+    def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
+        """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
+        matrix at this size; returns (h, w) int32 moving regions with persistent ids at the dense size
+        (``dense_width`` wide).
 
-        ``moving`` then holds the frame's (H, W) bool evidence (hulls and dense residual) before grouping, and
-        ``moving_track_points`` the (M, 2) positions of its moving tracks."""
+        ``moving`` then holds the frame's (h, w) bool evidence (hulls and dense residual) before grouping, and
+        ``moving_track_points`` the (M, 2) positions of its moving tracks (tracking pixels)."""
         self._points.update(gray)
         self._frames.append((self._points.ids.copy(), self._points.points.copy()))
         small = self._dense_size(gray.shape)
         self._grays.append(cv2.resize(gray, small[::-1], interpolation=cv2.INTER_AREA) if small != gray.shape
                            else gray)
-        moving = self._sparse_mask(gray.shape)
+        self._guessed = camera_matrix is None
+        K = guessed_camera_matrix(gray.shape) if self._guessed else camera_matrix
+        moving = self._sparse_mask(small, small[1] / gray.shape[1], K)
         if self.config.dense and len(self._grays) > self.config.dense_gap:
-            dense = self._dense_mask(self._grays[0], self._grays[-1])
-            moving |= cv2.resize(dense.astype(np.uint8), gray.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0
+            moving |= self._dense_mask(self._grays[0], self._grays[-1])
         self.moving = moving
-        regions = propose_regions(moving, self.config.min_region_area, self.config.close_px)
-        return self._regions.update(regions)
+        return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
 
     def _dense_size(self, shape: tuple[int, int]) -> tuple[int, int]:
         scale = min(1.0, self.config.dense_width / shape[1])
         return max(32, round(shape[0] * scale)), max(32, round(shape[1] * scale))
 
-    def _flagged_now(self) -> np.ndarray:
+    def _flagged_now(self, K: np.ndarray) -> np.ndarray:
         """Ids of the current frame's tracks that move (this window, or sticky from earlier windows)."""
-        self._fit_newest_pair()
+        self._fit_newest_pair(K)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
-        ids = np.unique(np.concatenate([i for i, _ in self._pairs]))
+        ids = np.unique(np.concatenate([i for i, _, _ in self._pairs]))
         residuals = np.full((ids.size, len(self._pairs)), np.nan, dtype=np.float32)
-        for m, (pair_ids, distance) in enumerate(self._pairs):
-            residuals[np.searchsorted(ids, pair_ids), m] = distance
-        flagged = ids[moving_tracks(residuals, self.config.track_motion)]
+        signed = np.full_like(residuals, np.nan)
+        for m, (pair_ids, distance, parallax) in enumerate(self._pairs):
+            rows = np.searchsorted(ids, pair_ids)
+            residuals[rows, m] = distance
+            if parallax is not None:
+                signed[rows, m] = parallax
+        flagged = ids[moving_tracks(residuals, self.config.track_motion, signed)]
         for i in flagged.tolist():
             self._flag_count[i] = self._flag_count.get(i, 0) + 1
         alive = set(self._points.ids.tolist())
@@ -139,20 +147,20 @@ class MotionFrontEnd:
         sticky = np.array([i for i, c in self._flag_count.items() if c >= self.config.sticky_windows], dtype=np.int64)
         return np.union1d(flagged, sticky)
 
-    def _fit_newest_pair(self) -> None:
+    def _fit_newest_pair(self, K: np.ndarray) -> None:
         if len(self._frames) <= self.config.track_motion.gap:
             return
         (ids1, x1), (ids2, x2) = self._frames[0], self._frames[-1]
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
-        distance = pair_residual(x1[i1], x2[i2], self.config.track_motion)
-        if distance is not None:
-            self._pairs.append((both, distance))
+        evidence = pair_evidence(x1[i1], x2[i2], self.config.track_motion, K, self._guessed)
+        if evidence is not None:
+            self._pairs.append((both, *evidence))
 
-    def _sparse_mask(self, shape: tuple[int, int]) -> np.ndarray:
-        flagged = self._flagged_now()
+    def _sparse_mask(self, shape: tuple[int, int], scale: float, K: np.ndarray) -> np.ndarray:
+        flagged = self._flagged_now(K)
         here = np.isin(self._points.ids, flagged)
         self.moving_track_points = self._points.points[here]
-        return hull_mask(self.moving_track_points, shape, self.config.link_fraction * shape[1],
+        return hull_mask(self.moving_track_points * scale, shape, self.config.link_fraction * shape[1],
                          self.config.min_group)
 
     def _dense_mask(self, earlier: np.ndarray, gray: np.ndarray) -> np.ndarray:

@@ -32,11 +32,13 @@ class FrameInput:
         gray: (h, w) uint8 frame at the working resolution.
         full: (H, W) uint8 frame at the input resolution (for methods that track at their own resolution).
         instances: (h, w) int32 upstream instance ids at the working resolution, or None.
+        camera_matrix: (3, 3) K at the input resolution (from camera_info), or None when uncalibrated.
     """
 
     gray: np.ndarray
     full: np.ndarray
     instances: np.ndarray | None = None
+    camera_matrix: np.ndarray | None = None
 
 
 @dataclass

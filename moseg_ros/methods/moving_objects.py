@@ -3,7 +3,7 @@
 The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave
 the camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex
 hulls, united with a dense epipolar residual mask at the working resolution; regions keep their ids over
-time. Every region the front-end reports is flagged as moving. With upstream instances, they are the
+time. The cheirality part of the track test uses camera_info's K when it comes, a guessed one otherwise. Every region the front-end reports is flagged as moving. With upstream instances, they are the
 objects instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's
 evidence.
 """
@@ -34,6 +34,15 @@ def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
                    dense_width=config.working_width, min_region_area=config.min_region_area)
 
 
+def scaled_camera_matrix(K: np.ndarray | None, size: tuple[int, int],
+                         resized: tuple[int, int]) -> np.ndarray | None:
+    """K of an image of ``size`` (H, W) for the same image resized to ``resized``; None stays None."""
+    if K is None:
+        return None
+    scale = np.diag([resized[1] / size[1], resized[0] / size[0], 1.0])
+    return scale @ K
+
+
 class MovingObjects:
     """Weight-free moving-object regions from sparse and dense epipolar evidence."""
 
@@ -52,7 +61,9 @@ class MovingObjects:
 
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
-        labels = self._front_end.update(self._tracking_frame(frame.full))
+        tracking = self._tracking_frame(frame.full)
+        labels = self._front_end.update(tracking, scaled_camera_matrix(frame.camera_matrix, frame.full.shape,
+                                                                       tracking.shape))
         self._frames += 1
         if frame.instances is not None:
             return self._decide_instances(frame.instances)
@@ -63,8 +74,10 @@ class MovingObjects:
     def _decide_instances(self, instances: np.ndarray) -> Decision:
         if self._frames == 1:
             return Decision(instances, status=Status.WARMUP)
-        evidence = cv2.resize(self._front_end.moving.astype(np.uint8), instances.shape[::-1],
-                              interpolation=cv2.INTER_NEAREST) > 0
+        evidence = self._front_end.moving
+        if evidence.shape != instances.shape:
+            evidence = cv2.resize(evidence.astype(np.uint8), instances.shape[::-1],
+                                  interpolation=cv2.INTER_NEAREST) > 0
         everywhere = np.ones(instances.shape, dtype=bool)
         return Decision(instances, dynamic_instances(instances, evidence, everywhere,
                                                      self.config.instance_min_fraction))
