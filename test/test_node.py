@@ -197,7 +197,7 @@ def test_invalid_parameter_is_refused_with_a_clear_message(ros_domain, tmp_path)
     log = tmp_path / "log"
     process = start_segmenter(ros_domain, log, params=["flow_preset:=warp"])
     assert process.wait(timeout=20) == 2
-    assert "flow_preset='warp' is not one of" in log.read_text()
+    assert "flow_preset 'warp' is not one of" in log.read_text()
     process = start_segmenter(ros_domain, log, params=["working_width:=10"])
     assert process.wait(timeout=20) == 2
     assert "working_width" in log.read_text()
