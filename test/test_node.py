@@ -29,9 +29,11 @@ RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, history=
 
 @pytest.fixture
 def segmenter(ros_domain, tmp_path):
-    """A running segmenter process on the test's domain; yields (process, log path), stops it after."""
+    """A running segmenter process on the test's domain; yields (process, log path), stops it after. Its queue
+    holds every frame these tests send, so a busy machine slows them down instead of dropping frames (drops
+    have their own test)."""
     log = tmp_path / "segmenter.log"
-    process = start_segmenter(ros_domain, log)
+    process = start_segmenter(ros_domain, log, params=["queue_size:=50"])
     yield process, log
     stop_segmenter(process)
 
