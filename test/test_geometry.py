@@ -103,3 +103,18 @@ def test_bad_shapes_raise():
         geometry.fundamental_eight_point(np.zeros((10, 3)), np.zeros((10, 3)))
     with pytest.raises(ValueError, match="weights"):
         geometry.fundamental_eight_point(np.zeros((10, 2)), np.zeros((10, 2)), np.ones(9))
+
+
+class TestGric:
+    def test_known_value(self):
+        # rho = min(e^2 / sigma^2, 2 (r - d)) = [1, 2] for d = 3; + log(4) 3 n + log(8) k
+        value = geometry.gric(np.array([1.0, 9.0]), 1.0, manifold_dim=3, parameters=7)
+        assert value == pytest.approx(3.0 + np.log(4) * 6 + np.log(8) * 7)
+
+    def test_homography_preferred_for_a_plane_and_not_for_depth(self):
+        rng = np.random.default_rng(0)
+        n = 300
+        planar_f, planar_h = rng.normal(0, 0.3, n) ** 2, rng.normal(0, 0.3, n) ** 2
+        assert geometry.homography_preferred(planar_f, planar_h, sigma=0.3)
+        parallax_h = (rng.normal(0, 0.3, n) + rng.uniform(0, 4, n)) ** 2  # depth the homography cannot explain
+        assert not geometry.homography_preferred(planar_f, parallax_h, sigma=0.3)

@@ -42,10 +42,19 @@ class TestPairResidual:
         assert np.median(distance[~mover]) < 0.5
         assert np.median(distance[mover]) > 3.0
 
-    def test_too_few_points_or_no_parallax_give_none(self):
+    def test_too_few_points_give_none(self):
         tracks, _ = street()
         assert pair_residual(tracks[:10, 0], tracks[:10, 2]) is None
-        assert pair_residual(tracks[:, 0], tracks[:, 0] + 0.1) is None
+
+    def test_a_still_camera_makes_every_motion_the_residual(self):
+        """Median motion below min_parallax_px: the camera's motion is the identity (no F, no sign)."""
+        rng = np.random.default_rng(3)
+        x1 = rng.uniform([0, 0], [600, 200], (200, 2))
+        x2 = x1 + rng.normal(0, 0.05, x1.shape)
+        x2[:20] += [4.0, 0.0]  # a walker in front of a camera on a tripod
+        distance, signed = pair_evidence(x1, x2, TrackMotionConfig(), K)
+        assert signed is None
+        assert np.allclose(distance[:20], 4.0, atol=0.3) and np.median(distance[20:]) < 0.1
 
 
 class TestPairResiduals:

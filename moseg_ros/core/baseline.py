@@ -36,6 +36,7 @@ class BaselineConfig:
     min_parallax_px: float = 0.3
     min_inliers: int = 30
     homography_preference: float = 0.9
+    gric_min_sigma_px: float = 0.1
 
 
 @dataclass
@@ -47,7 +48,8 @@ class EpipolarResidual:
         valid: (H, W) bool, pixels whose flow passed the forward-backward check.
         threshold: residual above which a pixel counts as independently moving this frame.
         fundamental: (3, 3) F with x_prev^T F x_cur = 0, or None when the geometry was not estimable.
-        homography: (3, 3) H with x_prev ~ H x_cur when the dominant motion is a homography, else None.
+        homography: (3, 3) H with x_prev ~ H x_cur when the dominant motion is a homography (the identity
+            when the camera stands still), else None.
         inlier_ratio: RANSAC inlier fraction of the sampled correspondences.
     """
 
@@ -90,8 +92,11 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         config: thresholds.
 
     Returns:
-        The per-pixel residual map and the fitted geometry. When the camera barely moved or RANSAC found too
-        few inliers the residual is all zeros (no evidence either way) and ``fundamental`` is None.
+        The per-pixel residual map and the fitted geometry. When the camera stands still (median flow below
+        ``min_parallax_px``) the dominant motion is the identity: the residual is each pixel's flow and
+        ``homography`` the identity. When RANSAC finds too few inliers the residual is all zeros (no evidence
+        either way) and both models are None. The homography replaces F when it explains nearly as many
+        samples (``homography_preference``) or when Torr's GRIC prefers it.
     """
     h, w = to_previous.shape[:2]
     grid = pixel_grid(h, w)
@@ -108,7 +113,12 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     if len(points) < config.min_inliers:
         return empty
     if np.median(np.linalg.norm(matches - points, axis=1)) < config.min_parallax_px:
-        return empty
+        # The camera stands still: the dominant motion is the identity, and any flow is the residual.
+        identity = np.eye(3)
+        residual[valid] = np.hypot(to_previous[valid][:, 0], to_previous[valid][:, 1])
+        noise = 1.4826 * float(np.median(np.linalg.norm(matches - points, axis=1)))
+        threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
+        return EpipolarResidual(residual, valid, float(threshold), None, 1.0, identity)
     fundamental, inliers = cv2.findFundamentalMat(points, matches, cv2.USAC_FAST,
                                                   config.ransac_threshold_px, 0.999, 2000)
     if fundamental is None or fundamental.shape != (3, 3) or inliers is None:
@@ -120,6 +130,12 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     homography, h_inliers = cv2.findHomography(points, matches, cv2.USAC_FAST, config.ransac_threshold_px)
     planar = (homography is not None and h_inliers is not None
               and h_inliers.sum() >= config.homography_preference * inliers.sum())
+    if not planar and homography is not None:
+        # Or when Torr's GRIC prefers the homography (F's extra freedom explains only noise).
+        f_squared = sampson_pixels(fundamental, points, matches) ** 2
+        h_squared = homography_distance(homography, points, matches) ** 2
+        sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[inliers]))), config.gric_min_sigma_px)
+        planar = geometry.homography_preferred(f_squared, h_squared, sigma)
     here, there = grid[valid], grid[valid] + to_previous[valid]
     if planar:
         h_inliers = h_inliers.ravel().astype(bool)

@@ -323,3 +323,21 @@ FIT = {"fundamental": fundamental_eight_point, "homography": homography_dlt, "af
 RESIDUAL = {"fundamental": sampson_distance, "homography": homography_transfer_error,
             "affine": affine_transfer_error}
 """Fit and residual function of each model name, for code that is generic over the model."""
+
+
+def gric(squared_errors: np.ndarray, sigma: float, manifold_dim: int, parameters: int,
+         data_dim: int = 4) -> float:
+    """Torr's Geometric Robust Information Criterion of one model (lower is better).
+
+    GRIC = sum rho(e^2 / sigma^2) + log(r) d n + log(r n) k, rho(x) = min(x, 2 (r - d)); r = 4 for two-view
+    correspondences, d = 3, k = 7 for F and d = 2, k = 8 for a homography (Torr, 'An assessment of
+    information criteria for motion model selection', CVPR 1997).
+    """
+    n = len(squared_errors)
+    rho = np.minimum(np.asarray(squared_errors, dtype=np.float64) / sigma ** 2, 2.0 * (data_dim - manifold_dim))
+    return float(rho.sum() + np.log(data_dim) * manifold_dim * n + np.log(data_dim * n) * parameters)
+
+
+def homography_preferred(f_squared: np.ndarray, h_squared: np.ndarray, sigma: float) -> bool:
+    """Whether GRIC prefers the homography (d = 2, k = 8) over F (d = 3, k = 7) for the same correspondences."""
+    return gric(h_squared, sigma, 2, 8) < gric(f_squared, sigma, 3, 7)

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from moseg_ros.core.geometry import homography_transfer_error, sampson_distance
+from moseg_ros.core.geometry import homography_preferred, homography_transfer_error, sampson_distance
 
 
 @dataclass(frozen=True)
@@ -49,6 +49,7 @@ class TrackMotionConfig:
     cheir_min_votes: int = 20
     guessed_max_rotation_deg: float = 2.0
     homography_preference: float = 0.9
+    gric_min_sigma_px: float = 0.1
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:
@@ -110,17 +111,27 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
         return None
     x1, x2 = np.asarray(x1, dtype=np.float64), np.asarray(x2, dtype=np.float64)
     if np.median(np.linalg.norm(x2 - x1, axis=1)) < config.min_parallax_px:
-        return None
+        # The camera stands still: the dominant motion is the identity, any motion is the residual.
+        return np.linalg.norm(x2 - x1, axis=1).astype(np.float32), None
     fundamental, f_inliers = cv2.findFundamentalMat(x1, x2, cv2.USAC_MAGSAC, config.ransac_px, 0.999, 1000)
     if fundamental is None or fundamental.shape != (3, 3) or f_inliers is None:
         return None
     homography, h_inliers = cv2.findHomography(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
-    if homography is not None and h_inliers is not None and (
-            h_inliers.sum() >= config.homography_preference * f_inliers.sum()):
+    f_squared = sampson_distance(fundamental[None], x1, x2)[0]
+    planar = False
+    if homography is not None and h_inliers is not None:
+        h_squared = 0.5 * homography_transfer_error(homography[None], x1, x2)[0]
+        # F is degenerate when the homography explains about as many tracks, or when Torr's GRIC prefers it.
+        planar = h_inliers.sum() >= config.homography_preference * f_inliers.sum()
+        if not planar:
+            inliers = f_inliers.ravel().astype(bool)
+            sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[inliers]))), config.gric_min_sigma_px)
+            planar = homography_preferred(f_squared, h_squared, sigma)
+    if planar:
         # F is degenerate: no translation to take a sign from.
-        return np.sqrt(0.5 * homography_transfer_error(homography[None], x1, x2)[0]).astype(np.float32), None
+        return np.sqrt(h_squared).astype(np.float32), None
     # cv2's F satisfies x2^T F x1 = 0, the convention of geometry.sampson_distance(F, x1, x2).
-    distance = np.sqrt(sampson_distance(fundamental[None], x1, x2)[0]).astype(np.float32)
+    distance = np.sqrt(f_squared).astype(np.float32)
     signed = None
     if K is not None:
         limit = config.guessed_max_rotation_deg if guessed else np.inf

@@ -165,7 +165,7 @@ class MotionFrontEnd:
 
     def _dense_mask(self, earlier: np.ndarray, gray: np.ndarray) -> np.ndarray:
         evidence = epipolar_residual(self._flow(gray, earlier), self._flow(earlier, gray), self.config.dense_baseline)
-        if evidence.fundamental is None:
+        if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         if self.config.min_texture > 0:

@@ -51,10 +51,11 @@ class EpipolarBaseline:
         """(labels, dynamic ids, whether the geometry was found) for ``gray`` against ``previous``."""
         evidence = epipolar_residual(self._flow(gray, previous), self._flow(previous, gray), self._baseline)
         moving = evidence.residual > evidence.threshold
+        found = evidence.fundamental is not None or evidence.homography is not None
         if instances is not None:
             ids = dynamic_instances(instances, moving, evidence.valid, self.config.instance_min_fraction)
-            return instances, ids, evidence.fundamental is not None
+            return instances, ids, found
         labels = self._regions.update(propose_regions(moving, self.config.min_region_area))
         ids = np.array(sorted(i for i, age in self._regions.ages.items()
                               if age >= self.config.min_persistence), dtype=np.int32)
-        return labels, ids, evidence.fundamental is not None
+        return labels, ids, found
