@@ -202,7 +202,7 @@ class SegmenterNode(Node):
 
     def _handle(self, msg: Any, arrived: float) -> None:
         try:
-            frame = decode_frame(msg)
+            frame = decode_frame(msg, self.settings["max_pixels"])
             instances = self._take_instances(msg)
         except ValueError as error:
             self.counters.bad_input += 1

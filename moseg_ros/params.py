@@ -83,6 +83,9 @@ class NodeSettings:
     compressed_input: bool = setting(False, "subscribe `image` as sensor_msgs/CompressedImage")
     use_instances: bool = setting(False, "pair each image with an upstream instance-id image on `instances`")
     instances_timeout_s: float = setting(0.2, "how long a frame waits for its instance image", low=0.0, high=5.0)
+    max_pixels: int = setting(16_777_216, "largest image accepted, in pixels (raw: declared size; compressed: "
+                              "its header's, read before decoding): a decompression bomb is refused cheaply",
+                              low=1, high=2**31 - 1)
     queue_size: int = setting(4, "frames waiting for the worker; the oldest is dropped on overflow",
                               low=1, high=100)
     diagnostics_period_s: float = setting(1.0, "period of /diagnostics", low=0.1, high=60.0)

@@ -224,10 +224,15 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
         bad.header.stamp.sec = 30
         bad.data = b"not a jpeg"
         probe.send_and_wait(bad, expect_mask=False)
+        # a 65 KB PNG declaring 8192x8192 (a decompression bomb): refused from its header, undecoded
+        bomb = CompressedImage(format="png")
+        bomb.header.stamp.sec = 31
+        bomb.data = cv2.imencode(".png", np.zeros((8192, 8192), np.uint8))[1].tobytes()
+        probe.send_and_wait(bomb, expect_mask=False)
         assert probe.spin_until(lambda: len(probe.masks) >= 4, 20), log.read_text()
         assert [m.header.stamp.sec for m in probe.masks] == [20, 21, 22, 23]
         assert {(m.height, m.width) for m in probe.masks} == {(188, 621)}
-        assert probe.spin_until(lambda: probe.diagnostics.get("bad_input") == "1", 5), probe.diagnostics
+        assert probe.spin_until(lambda: probe.diagnostics.get("bad_input") == "2", 5), probe.diagnostics
         assert process.poll() is None
     finally:
         probe.close()

@@ -11,16 +11,17 @@ from moseg_ros.io.image import ImageDecodeError, compressed_to_array, image_to_a
 GREY_ENCODINGS = frozenset({"mono8", "mono16", "8UC1", "16UC1"})
 
 
-def decode_frame(msg: Any) -> np.ndarray:
+def decode_frame(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     """Decode a sensor_msgs/Image or CompressedImage into the pipeline's frame.
 
     Grey encodings give (H, W) uint8; colour, Bayer and YUV give (H, W, 3) uint8 RGB. Raises
-    ImageDecodeError (a ValueError) with the reason for anything that is not a usable camera image.
+    ImageDecodeError (a ValueError) with the reason for anything that is not a usable camera image, and for
+    an image whose declared size (raw: height x width; compressed: the header's) exceeds ``max_pixels``.
     """
     if hasattr(msg, "format"):
-        frame = compressed_to_array(msg)
+        frame = compressed_to_array(msg, max_pixels)
         return (frame >> 8).astype(np.uint8) if frame.dtype == np.uint16 else frame
-    pixels = image_to_array(msg)
+    pixels = image_to_array(msg, max_pixels)
     if msg.encoding in GREY_ENCODINGS:
         return to_gray(pixels, msg.encoding)
     return to_rgb(pixels, msg.encoding)

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import array as pyarray
 import dataclasses
+import io
 import re
 from typing import Any
 
 import cv2
 import numpy as np
+import PIL.Image
 
 __all__ = [
     "ImageDecodeError",
@@ -78,18 +80,26 @@ def _buffer(data: Any) -> np.ndarray:
     return np.frombuffer(data, dtype=np.uint8)
 
 
-def image_to_array(msg: Any) -> np.ndarray:
+def check_pixel_count(width: int, height: int, max_pixels: int | None, what: str) -> None:
+    """Raise ImageDecodeError when a declared size exceeds ``max_pixels`` (None: no limit)."""
+    if max_pixels is not None and width * height > max_pixels:
+        raise ImageDecodeError(f"{what} declares {width}x{height} = {width * height} pixels, over the limit of "
+                               f"{max_pixels} (parameter max_pixels)")
+
+
+def image_to_array(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     """Pixels of a sensor_msgs/Image in their own encoding.
 
     Returns an (H, W) array for one-channel encodings (mono, bayer, xxC1) and (H, W, C) otherwise (the
     4:2:2 YUV encodings give (H, W, 2) raw bytes), in the encoding's dtype and native byte order. Row
     padding (``step`` > W * bytes per pixel) is dropped by a strided view; a copy happens only to swap a
-    big-endian buffer.
+    big-endian buffer. A declared size over ``max_pixels`` is refused before the data is looked at.
     """
     dtype, channels = encoding_layout(msg.encoding)
     height, width, step = int(msg.height), int(msg.width), int(msg.step)
     if height <= 0 or width <= 0:
         raise ImageDecodeError(f"zero size image: {width}x{height} ({msg.encoding})")
+    check_pixel_count(width, height, max_pixels, f"a {msg.encoding} image")
     row_bytes = width * channels * dtype.itemsize
     if step < row_bytes:
         raise ImageDecodeError(
@@ -175,11 +185,24 @@ def to_rgb(array: np.ndarray, encoding: str) -> np.ndarray:
     raise ImageDecodeError(f"cannot convert {encoding!r} to RGB (not a colour or intensity image)")
 
 
-def compressed_to_array(msg: Any) -> np.ndarray:
+def compressed_size(buf: np.ndarray) -> tuple[int, int]:
+    """(width, height) from a compressed image's header, without decoding its pixels.
+
+    Pillow reads only the header on open (its decoding is lazy), so a decompression bomb costs nothing here.
+    """
+    try:
+        with PIL.Image.open(io.BytesIO(buf.tobytes())) as header:
+            return header.size
+    except (PIL.UnidentifiedImageError, OSError, ValueError, PIL.Image.DecompressionBombError) as error:
+        raise ImageDecodeError(f"cannot read the image header: {error}") from None
+
+
+def compressed_to_array(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     """Decode a sensor_msgs/CompressedImage to (H, W, 3) uint8 RGB, or (H, W) uint8 for a grey image.
 
     The ``format`` string ("jpeg", "png", "rgb8; jpeg compressed bgr8", ...) is only checked for a known
-    codec; cv2.imdecode reads the actual codec from the bytes. 16-bit PNGs are returned as uint16.
+    codec; cv2.imdecode reads the actual codec from the bytes. 16-bit PNGs are returned as uint16. With
+    ``max_pixels``, the size in the header is checked first and a larger image is refused undecoded.
     """
     fmt = str(msg.format).lower()
     if fmt and not any(codec in fmt for codec in ("jpeg", "jpg", "png", "tiff", "bmp", "webp")):
@@ -187,6 +210,8 @@ def compressed_to_array(msg: Any) -> np.ndarray:
     buf = _buffer(msg.data)
     if buf.size == 0:
         raise ImageDecodeError(f"empty data in a CompressedImage ({msg.format!r})")
+    if max_pixels is not None:
+        check_pixel_count(*compressed_size(buf), max_pixels, f"a {msg.format!r} CompressedImage")
     decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
     if decoded is None:
         raise ImageDecodeError(f"cv2.imdecode could not decode {buf.size} bytes of {msg.format!r}")
