@@ -24,6 +24,7 @@ demo: $(INSTALLED)
 	$(BIN)/moseg demo --out out
 
 test: $(INSTALLED)
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest test
 
 clean:

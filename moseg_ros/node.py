@@ -210,7 +210,8 @@ class SegmenterNode(Node):
             return
         if instances is not None and instances.shape != frame.shape[:2]:
             self.counters.bad_input += 1
-            self._warn("bad_instances", f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
+            self._warn("bad_instances",
+                       f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame))

@@ -6,7 +6,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +15,8 @@ from moseg_ros.io.bags import iter_messages, stamp_to_ns
 from moseg_ros.tools.dds import loopback_env
 from moseg_ros.tools.demo import start_segmenter, stop_segmenter
 
-rclpy = pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
+pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
+import rclpy  # noqa: E402
 import rclpy.executors  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402

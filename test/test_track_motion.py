@@ -106,8 +106,8 @@ def test_a_planar_pan_uses_the_homography_so_the_mover_stands_out():
 
 def car_ahead(frames: int = 6, seed: int = 0):
     """Tracks of the street above with, instead of the crossing block, a car 8-10 m ahead in the next lane
-    driving in the camera's own direction at twice its speed: it pulls away along the epipolar lines, so its Sampson distance
-    is ~0, but it lies 'behind infinity' (negative parallax). Returns tracks (N, F, 2), is_car (N,)."""
+    driving in the camera's own direction at twice its speed: it pulls away along the epipolar lines, so its
+    Sampson distance is ~0, but it lies 'behind infinity' (negative parallax). Returns tracks (N, F, 2), is_car (N,)."""
     rng = np.random.default_rng(seed)
     tracks, _ = street(n_mover=0, frames=frames, seed=seed)
     car = np.column_stack([rng.uniform(1.5, 3.5, 40), rng.uniform(-0.5, 1, 40), rng.uniform(8, 10, 40)])

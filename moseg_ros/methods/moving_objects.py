@@ -3,9 +3,9 @@
 The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave
 the camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex
 hulls, united with a dense epipolar residual mask at the working resolution; regions keep their ids over
-time. The cheirality part of the track test uses camera_info's K when it comes, a guessed one otherwise. Every region the front-end reports is flagged as moving. With upstream instances, they are the
-objects instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's
-evidence.
+time. The cheirality part of the track test uses camera_info's K when it comes, a guessed one otherwise.
+Every region the front-end reports is flagged as moving. With upstream instances, they are the objects
+instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
 """
 
 from __future__ import annotations
@@ -19,7 +19,6 @@ import numpy as np
 from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig
-from moseg_ros.frontend.tracks import TrackerConfig
 from moseg_ros.methods.base import Decision, FrameInput, Status
 
 if TYPE_CHECKING:

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from moseg_ros.io.bags import COMPRESSED_TYPE, BagWriter, iter_messages, list_topics, pick_image_topic
+from moseg_ros.io.bags import BagWriter, iter_messages, list_topics, pick_image_topic
 from moseg_ros.tools.dds import use_loopback
 
 OUTPUTS = {
