@@ -12,6 +12,8 @@ import importlib
 import sys
 from typing import Sequence
 
+from moseg_ros.params import SettingsError
+
 # name -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("moseg_ros.synth.cli", "render a synthetic street scene with ground truth into a bag"),
@@ -67,7 +69,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `moseg` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(argv).parse_args(argv)
-    return int(args._run(args) or 0)
+    try:
+        return int(args._run(args) or 0)
+    except SettingsError as error:
+        print(f"moseg: error: {error}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -19,6 +19,10 @@ import yaml
 QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
 
 
+class SettingsError(ValueError):
+    """A tool's --params / --set could not be made into valid settings (the `moseg` command exits 2)."""
+
+
 @dataclass(frozen=True)
 class Setting:
     """What the schema knows of one setting."""
@@ -135,12 +139,19 @@ def add_settings_arguments(parser: argparse.ArgumentParser, method: bool = True)
                         help="override one pipeline setting, e.g. --set method=epipolar_baseline (repeatable)")
 
 
-def pipeline_config(args: argparse.Namespace, **fixed: Any) -> Any:
-    """The PipelineConfig of a tool's ``--params`` / ``--set`` (and the tool's own ``fixed`` choices).
+def pipeline_config(args: argparse.Namespace) -> Any:
+    """The PipelineConfig of a tool's ``--params``, then ``--method``, then ``--set``.
 
     Raises:
-        ValueError: an unknown name, a value of the wrong type or out of range.
+        SettingsError: an unknown name, a value of the wrong type or out of range, an unreadable file.
     """
+    try:
+        return _pipeline_config(args)
+    except (ValueError, OSError, yaml.YAMLError) as error:
+        raise SettingsError(str(error)) from None
+
+
+def _pipeline_config(args: argparse.Namespace) -> Any:
     from moseg_ros.pipeline import PipelineConfig
 
     schema = settings_of(PipelineConfig)
@@ -152,7 +163,7 @@ def pipeline_config(args: argparse.Namespace, **fixed: Any) -> Any:
     values = {name: value for name, value in values.items() if name in names}
     if getattr(args, "method", None):
         values["method"] = args.method
-    values = apply_overrides({**values, **fixed}, getattr(args, "set", []), schema)
+    values = apply_overrides(values, getattr(args, "set", []), schema)
     config = PipelineConfig(**values)
     config.validate()
     return config

@@ -81,16 +81,21 @@ def test_annotations_pair_by_stem_or_by_order():
     assert pair_annotations(images, [Path("a.png"), Path("b.png")]) == [Path("a.png"), Path("b.png"), None, None]
 
 
-def test_one_real_clip(tmp_path):
-    """DAVIS-2016 'dog' (a dog running, tracking camera), 12 frames: only checks the figures are well formed."""
+def _real_clip(tmp_path: Path, clip: str, frames: int) -> dict:
+    """`moseg eval davis` on one clip of ../shared/data/davis2016 (linked into a folder of its own)."""
     source = shared_data("davis2016")
     root = tmp_path / "davis"
     for kind in ("JPEGImages", "Annotations"):
         (root / kind / "480p").mkdir(parents=True)
-        (root / kind / "480p" / "dog").symlink_to(source / kind / "480p" / "dog")
+        (root / kind / "480p" / clip).symlink_to(source / kind / "480p" / clip)
     out = tmp_path / "r.json"
-    assert moseg(["eval", "davis", str(root), "--max-frames", "12", "--json", str(out)]) == 0
-    result = json.loads(out.read_text())
+    assert moseg(["eval", "davis", str(root), "--max-frames", str(frames), "--json", str(out)]) == 0
+    return json.loads(out.read_text())
+
+
+def test_one_real_clip(tmp_path):
+    """DAVIS-2016 'dog' (a dog running, tracking camera), 12 frames: only checks the figures are well formed."""
+    result = _real_clip(tmp_path, "dog", 12)
     assert 1 <= len(result["clips"]) <= 10 and result["clips"][0]["scored_frames"] == 11
     for key in ("mean_j", "precision", "recall"):
         assert math.isfinite(result[key]) and 0.0 <= result[key] <= 1.0, key
@@ -100,12 +105,5 @@ def test_one_real_clip(tmp_path):
 def test_the_default_method_finds_the_camel(tmp_path):
     """DAVIS-2016 'camel' (a camel walking, the camera panning after it), 30 frames. Measured with the default
     method: J 0.47, precision 0.57, recall 0.74 (the epipolar baseline: J below 0.01)."""
-    source = shared_data("davis2016")
-    root = tmp_path / "davis"
-    for kind in ("JPEGImages", "Annotations"):
-        (root / kind / "480p").mkdir(parents=True)
-        (root / kind / "480p" / "camel").symlink_to(source / kind / "480p" / "camel")
-    out = tmp_path / "r.json"
-    assert moseg(["eval", "davis", str(root), "--max-frames", "30", "--json", str(out)]) == 0
-    result = json.loads(out.read_text())
+    result = _real_clip(tmp_path, "camel", 30)
     assert result["mean_j"] > 0.35 and result["recall"] > 0.55 and result["precision"] > 0.4

@@ -91,3 +91,10 @@ class TestPipelineConfig:
         path.write_text("/**:\n  ros__parameters:\n    wrking_width: 320\n")
         with pytest.raises(ValueError, match="unknown parameters"):
             pipeline_config(_parse("--params", str(path)))
+
+
+def test_a_tool_refuses_a_bad_setting_with_exit_code_2(capsys):
+    from moseg_ros.cli import main
+
+    assert main(["synth-eval", "--presets", "parked", "--set", "working_width=8"]) == 2
+    assert "moseg: error: working_width 8 must be within 64..4096" in capsys.readouterr().err

@@ -43,11 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the timing as JSON."""
-    try:
-        config = pipeline_config(args)
-    except ValueError as error:
-        print(f"moseg bench pipeline: error: {error}")
-        return 2
+    config = pipeline_config(args)
     instances = None
     if args.bag is None:
         from moseg_ros.synth.scenarios import render_sequence

@@ -177,11 +177,7 @@ def run(args: argparse.Namespace) -> int:
     if not clip_names(args.dir):
         print(f"no DAVIS clips (JPEGImages/{RESOLUTION}/<clip>/) under {args.dir}")
         return 2
-    try:
-        config = pipeline_config(args)
-    except ValueError as error:
-        print(f"moseg eval davis: error: {error}")
-        return 2
+    config = pipeline_config(args)
     with threadpool_limits(1):
         scores, skipped = evaluate(args.dir, config, args.max_frames)
     print(f"{'clip':20s} {'frames':>6s} {'scored':>6s} {'J %':>6s} {'precision %':>11s} {'recall %':>8s} "

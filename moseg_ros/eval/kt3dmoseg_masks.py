@@ -157,11 +157,7 @@ def run(args: argparse.Namespace) -> int:
     if not find_clips(root):
         print(no_clips_message(root))
         return 2
-    try:
-        config = pipeline_config(args)
-    except ValueError as error:
-        print(f"moseg eval kt3dmoseg-masks: error: {error}")
-        return 2
+    config = pipeline_config(args)
     with threadpool_limits(1):
         scores, without = evaluate(root, config)
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "

@@ -90,11 +90,7 @@ def run(args: argparse.Namespace) -> int:
     if unknown or not presets or args.seeds < 1:
         print(f"moseg synth-eval: presets must be among {', '.join(PRESETS)} and --seeds >= 1")
         return 2
-    try:
-        config = pipeline_config(args)
-    except ValueError as error:
-        print(f"moseg synth-eval: error: {error}")
-        return 2
+    config = pipeline_config(args)
     rows, scenes = [], []
     for preset in presets:
         for seed in range(args.seeds):
