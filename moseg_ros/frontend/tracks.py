@@ -18,7 +18,6 @@ class TrackerConfig:
     fb_max_px: float = 1.0
     window: int = 21
     levels: int = 3
-    reseed_fraction: float = 0.0
 
 
 class PointTracker:
@@ -26,7 +25,7 @@ class PointTracker:
 
     A point dies when KLT fails, when tracking it back lands more than ``fb_max_px`` from where it started
     (Kalal et al. 2010's forward-backward error), or when it leaves the image. New corners are seeded away
-    from the living points whenever fewer than ``(1 - reseed_fraction) x max_points`` remain.
+    from the living points whenever fewer than ``max_points`` remain.
     """
 
     def __init__(self, config: TrackerConfig = TrackerConfig()) -> None:
@@ -62,8 +61,7 @@ class PointTracker:
 
     def _seed(self, gray: np.ndarray) -> None:
         wanted = self.config.max_points - len(self.points)
-        # Seeding costs a corner search over the whole frame: wait until enough points are lost.
-        if wanted <= 0 or (len(self.points) and wanted < self.config.reseed_fraction * self.config.max_points):
+        if wanted <= 0:
             return
         occupied = np.zeros(gray.shape, dtype=np.uint8)
         xy = np.rint(self.points).astype(int)
