@@ -3,15 +3,16 @@
 Two kinds of evidence, both residuals of the camera's own (dominant) rigid motion:
 
 - sparse: KLT tracks over a causal window; a track moves when its epipolar distance, a median over the
-  window's frame pairs, stands out, or when its median signed parallax says it lies behind the camera
-  (cheirality with a guessed K, core/track_motion.py). A track flagged in ``sticky_windows`` windows stays
-  flagged while it lives. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
-  group of ``min_group`` or more fills its convex hull.
-- dense: DIS flow between the frame and the one ``gap`` frames back, forward-backward checked; pixels far
-  from the dominant epipolar geometry (core/baseline.py), cleaned by a morphological open and close, regions
-  of ``min_region_area`` pixels or more.
+  window's frame pairs, stands out, or when its median signed parallax says it lies "behind infinity"
+  (cheirality with camera_info's K or a guessed one, core/track_motion.py). A track flagged in
+  ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than ``link_fraction`` of the
+  image width are linked, and each group of ``min_group`` or more fills its convex hull.
+- dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
+  forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
+  texture (``min_texture``: DIS is unreliable on a blank road).
 
-The union of the two is split into connected regions, and the InstanceTracker gives them persistent ids.
+Both are drawn at ``dense_width``; their union, closed and opened, is split into connected regions of
+``min_region_area`` pixels or more, and the InstanceTracker gives them persistent ids.
 """
 
 from __future__ import annotations
