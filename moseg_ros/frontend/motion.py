@@ -99,7 +99,9 @@ class MotionFrontEnd:
         self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
         self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
-        self._flag_count: dict[int, int] = {}
+        # Living tracks that were ever flagged (sorted ids) and in how many windows.
+        self._flag_ids = np.zeros(0, dtype=np.int64)
+        self._flag_counts = np.zeros(0, dtype=np.int64)
         self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
         self.moving = np.zeros((0, 0), dtype=bool)
 
@@ -141,12 +143,20 @@ class MotionFrontEnd:
             if parallax is not None:
                 signed[rows, m] = parallax
         flagged = ids[moving_tracks(residuals, self.config.track_motion, signed)]
-        for i in flagged.tolist():
-            self._flag_count[i] = self._flag_count.get(i, 0) + 1
-        alive = set(self._points.ids.tolist())
-        self._flag_count = {i: c for i, c in self._flag_count.items() if i in alive}
-        sticky = np.array([i for i, c in self._flag_count.items() if c >= self.config.sticky_windows], dtype=np.int64)
-        return np.union1d(flagged, sticky)
+        return np.union1d(flagged, self._count_flags(flagged))
+
+    def _count_flags(self, flagged: np.ndarray) -> np.ndarray:
+        """Count one more window for each living flagged track; returns the ids flagged in enough windows."""
+        alive = self._points.ids
+        keep = np.isin(self._flag_ids, alive)
+        fresh = np.setdiff1d(flagged[np.isin(flagged, alive)], self._flag_ids)
+        ids = np.concatenate([self._flag_ids[keep], fresh])
+        counts = np.concatenate([self._flag_counts[keep], np.zeros(fresh.size, dtype=np.int64)])
+        order = np.argsort(ids)
+        ids, counts = ids[order], counts[order]
+        counts[np.isin(ids, flagged)] += 1
+        self._flag_ids, self._flag_counts = ids, counts
+        return ids[counts >= self.config.sticky_windows]
 
     def _fit_newest_pair(self, K: np.ndarray) -> None:
         if len(self._frames) <= self.config.track_motion.gap:
