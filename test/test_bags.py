@@ -13,6 +13,7 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from moseg_ros.io.bags import (
+    BagDamagedError,
     BagWriter,
     iter_messages,
     list_topics,
@@ -227,3 +228,93 @@ def test_stamp_helpers_round_trip() -> None:
         sec, nanosec = ns_to_stamp_fields(ns)
         assert 0 <= nanosec < 1_000_000_000
         assert stamp_to_ns(types["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec)) == ns
+
+
+def _mask_bag(path: Path, n: int, storage: str = "mcap") -> list[np.ndarray]:
+    """A bag of n sparse 375x1242 mono8 masks, about 1.9 MB of chunk data uncompressed every four frames."""
+    rng = np.random.default_rng(5)
+    masks = [((rng.random((375, 1242)) > 0.97) * 255).astype(np.uint8) for _ in range(n)]
+    with BagWriter(path, storage=storage) as writer:
+        for i, mask in enumerate(masks):
+            writer.write_image("/segmenter/dynamic_mask", T0 + i * DT, "camera", mask, "mono8")
+    return masks
+
+
+def _read_until_damage(path: Path) -> tuple[list[np.ndarray], BagDamagedError | None]:
+    images: list[np.ndarray] = []
+    try:
+        for image in read_images(path):
+            images.append(image.gray())
+    except BagDamagedError as error:
+        return images, error
+    return images, None
+
+
+class TestOutputCompression:
+    def test_mcap_chunks_are_zstd_and_small(self, tmp_path: Path) -> None:
+        masks = _mask_bag(tmp_path / "z", 12)
+        with (tmp_path / "z" / "z.mcap").open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+        assert len(summary.chunk_indexes) >= 2
+        assert {chunk.compression for chunk in summary.chunk_indexes} == {"zstd"}
+        assert (tmp_path / "z" / "z.mcap").stat().st_size < 0.3 * sum(m.nbytes for m in masks)
+        with BagWriter(tmp_path / "plain", compression=None) as writer:
+            writer.write_image("/m", 1, "c", masks[0], "mono8")
+        with (tmp_path / "plain" / "plain.mcap").open("rb") as stream:
+            assert {c.compression for c in make_reader(stream).get_summary().chunk_indexes} == {""}
+
+    def test_compressed_bag_reads_back_in_rosbags_and_ours(self, tmp_path: Path) -> None:
+        masks = _mask_bag(tmp_path / "z", 6)
+        with AnyReader([tmp_path / "z"], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+            assert sum(1 for _ in reader.messages()) == 6
+        images, damage = _read_until_damage(tmp_path / "z")
+        assert damage is None and all(np.array_equal(a, b) for a, b in zip(images, masks, strict=True))
+
+    def test_unknown_compression_is_refused(self, tmp_path: Path) -> None:
+        with pytest.raises(ValueError, match="unknown bag compression 'lzma'"):
+            BagWriter(tmp_path / "x", compression="lzma")
+
+
+class TestDamagedBags:
+    def test_killed_writer_leaves_complete_chunks_readable(self, tmp_path: Path) -> None:
+        """A writer killed mid-run leaves no metadata.yaml and no MCAP summary: what it flushed is read."""
+        masks = _mask_bag(tmp_path / "full", 20)
+        killed = tmp_path / "killed"
+        killed.mkdir()
+        data = (tmp_path / "full" / "full.mcap").read_bytes()
+        (killed / "killed.mcap").write_bytes(data[:len(data) // 2])
+        images, damage = _read_until_damage(killed)
+        assert damage is not None and "ends inside a record" in str(damage)
+        assert damage.messages_read == len(images) and 4 <= len(images) < 20
+        assert all(np.array_equal(a, b) for a, b in zip(images, masks))
+
+    def test_truncated_rosbag2_folder_with_metadata(self, tmp_path: Path) -> None:
+        masks = _mask_bag(tmp_path / "t", 20)
+        file = tmp_path / "t" / "t.mcap"
+        file.write_bytes(file.read_bytes()[:file.stat().st_size // 2])
+        assert list_topics(tmp_path / "t") == {"/segmenter/dynamic_mask": "sensor_msgs/msg/Image"}
+        images, damage = _read_until_damage(tmp_path / "t")
+        assert damage is not None and 4 <= len(images) < 20
+        assert all(np.array_equal(a, b) for a, b in zip(images, masks))
+
+    def test_corrupted_chunk_stops_reading_there(self, tmp_path: Path) -> None:
+        masks = _mask_bag(tmp_path / "c", 20)
+        file = tmp_path / "c" / "c.mcap"
+        data = bytearray(file.read_bytes())
+        middle = len(data) // 2
+        data[middle:middle + 4000] = bytes(b ^ 0x5A for b in data[middle:middle + 4000])
+        file.write_bytes(bytes(data))
+        images, damage = _read_until_damage(tmp_path / "c")
+        assert damage is not None and damage.path == tmp_path / "c"
+        assert 4 <= len(images) < 20 and all(np.array_equal(a, b) for a, b in zip(images, masks))
+
+    def test_truncated_sqlite3_and_ros1_bags_raise_bag_damaged(self, tmp_path: Path) -> None:
+        _mask_bag(tmp_path / "db", 8, storage="sqlite3")
+        (db,) = (tmp_path / "db").glob("*.db3")
+        db.write_bytes(db.read_bytes()[:db.stat().st_size // 3])
+        images, damage = _read_until_damage(tmp_path / "db")
+        assert damage is not None and len(images) < 8
+        ros1 = tmp_path / "old.bag"
+        ros1.write_bytes(b"#ROSBAG V2.0\n" + bytes(200))
+        with pytest.raises(BagDamagedError, match="old.bag is damaged"):
+            list_topics(ros1)

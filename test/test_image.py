@@ -221,3 +221,26 @@ def test_compressed_garbage_raises() -> None:
         compressed_to_array(SimpleNamespace(format="png", data=b""))
     with pytest.raises(ImageDecodeError, match="unsupported CompressedImage format"):
         compressed_to_array(SimpleNamespace(format="h264", data=b"\x00\x01"))
+
+
+def test_sixteen_bit_png_stays_sixteen_bit() -> None:
+    depth = (np.arange(24 * 40, dtype=np.uint16).reshape(24, 40) * 61).astype(np.uint16)
+    ok, png = cv2.imencode(".png", depth)
+    decoded = compressed_to_array(SimpleNamespace(format="16UC1; png compressed", data=png.tobytes()))
+    assert decoded.dtype == np.uint16
+    np.testing.assert_array_equal(decoded, depth)
+
+
+def test_damaged_streams_print_nothing(capfd: pytest.CaptureFixture) -> None:
+    """libjpeg and libpng print recoverable defects straight to fd 2; a stream of such frames must not flood it."""
+    rgb = cv2.GaussianBlur(random_image("rgb8", 64, 64), (5, 5), 2)
+    jpeg = cv2.imencode(".jpg", rgb)[1].tobytes()
+    png = cv2.imencode(".png", rgb)[1].tobytes()
+    spliced = jpeg[:200] + bytes(300) + jpeg[500:]  # libjpeg: "Corrupt JPEG data: ... extraneous bytes"
+    for _ in range(20):
+        assert compressed_to_array(SimpleNamespace(format="jpeg", data=spliced)).shape == (64, 64, 3)
+        for truncated in (jpeg[:len(jpeg) // 2], png[:len(png) // 2]):
+            with pytest.raises(ImageDecodeError, match="could not decode"):
+                compressed_to_array(SimpleNamespace(format="jpeg", data=truncated))
+    captured = capfd.readouterr()
+    assert captured.err == "" and captured.out == ""

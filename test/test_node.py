@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import signal
 import subprocess
 import sys
@@ -38,12 +39,17 @@ def segmenter(ros_domain, tmp_path):
     stop_segmenter(process)
 
 
+def _replay(bag, out, domain) -> subprocess.CompletedProcess:
+    """`moseg replay BAG -o OUT` in its own process on the test's domain."""
+    return subprocess.run(
+        [sys.executable, "-m", "moseg_ros.cli", "replay", str(bag), "-o", str(out),
+         "--domain", str(domain), "--discovery-timeout", "30"],
+        capture_output=True, text=True, timeout=120, env=loopback_env(domain))
+
+
 def test_replay_gets_one_mask_per_frame_with_identical_headers(segmenter, ros_domain, textured_bag, tmp_path):
     out = tmp_path / "masks"
-    result = subprocess.run(
-        [sys.executable, "-m", "moseg_ros.cli", "replay", str(textured_bag), "-o", str(out),
-         "--domain", str(ros_domain), "--discovery-timeout", "30"],
-        capture_output=True, text=True, timeout=120, env=loopback_env(ros_domain))
+    result = _replay(textured_bag, out, ros_domain)
     assert result.returncode == 0, result.stdout + result.stderr
 
     inputs = {stamp_to_ns(m.header.stamp): m.header.frame_id
@@ -60,6 +66,19 @@ def test_replay_gets_one_mask_per_frame_with_identical_headers(segmenter, ros_do
     assert np.frombuffer(bytes(dynamic[-1].data), np.uint8).mean() > 2.0
     process, _ = segmenter
     assert process.poll() is None
+
+
+def test_replay_of_a_truncated_bag_sends_what_it_can_read(segmenter, ros_domain, textured_bag, tmp_path):
+    file = next(textured_bag.glob("*.mcap"))
+    file.write_bytes(file.read_bytes()[:file.stat().st_size * 2 // 3])
+    out = tmp_path / "masks"
+    result = _replay(textured_bag, out, ros_domain)
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "Traceback" not in result.stderr and "is damaged" in result.stderr
+    summary = json.loads(result.stdout)
+    assert 5 <= summary["frames_in"] == summary["masks_out"] < 20
+    assert "ends inside a record" in summary["input_damage"]
+    assert len(list(iter_messages(out, ["/segmenter/dynamic_mask"]))) == summary["frames_in"]
 
 
 class _Probe:

@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
+import pytest
 
 from moseg_ros.cli import main as moseg
-from moseg_ros.io.bags import BagWriter, iter_messages, stamp_to_ns
+from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, stamp_to_ns
 from moseg_ros.io.image import image_to_array
 from moseg_ros.tools.process import process_bag
 
@@ -60,3 +68,46 @@ def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path
     assert "moseg process: error:" in capsys.readouterr().err
     assert moseg(["process", str(textured_bag), "-o", str(textured_bag), "--no-progress"]) == 2
     assert "moseg process: error:" in capsys.readouterr().err
+
+
+def test_damaged_input_is_processed_up_to_the_damage(textured_bag, tmp_path, capsys):
+    file = next(textured_bag.glob("*.mcap"))
+    file.write_bytes(file.read_bytes()[:file.stat().st_size * 2 // 3])
+    assert moseg(["process", str(textured_bag), "-o", str(tmp_path / "out"), "--no-progress"]) == 1
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.err
+    assert "is damaged" in captured.err and "wrote the masks of the" in captured.err
+    counts = json.loads(captured.out)
+    assert 5 <= counts["masks_out"] == counts["frames_in"] < 20
+    assert "ends inside a record" in counts["input_damage"]
+    assert len(_masks(tmp_path / "out")) == counts["masks_out"]
+
+
+def test_killed_run_leaves_a_readable_compressed_bag(tmp_path):
+    """SIGKILL in the middle of `moseg process`: every complete chunk of the output is read back."""
+    from conftest import textured_frames
+
+    bag = tmp_path / "long"
+    with BagWriter(bag) as writer:
+        for i, frame in enumerate(textured_frames(50) * 4):
+            writer.write_image("/camera/image_raw", 1_000 + i * 100_000_000, "cam", frame, "rgb8")
+    out = tmp_path / "out"
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    run = subprocess.Popen([sys.executable, "-m", "moseg_ros.cli", "process", str(bag), "-o", str(out)],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+    progress = b""
+    while b"40 frames" not in progress:
+        chunk = run.stderr.read1(4096)
+        assert chunk, f"moseg process ended early: {progress[-500:]!r}"
+        progress += chunk
+    run.send_signal(signal.SIGKILL)
+    run.wait(timeout=30)
+    run.stderr.close()
+    assert run.returncode == -signal.SIGKILL
+    assert not (out / "metadata.yaml").exists()
+    masks: list[np.ndarray] = []
+    with pytest.raises(BagDamagedError):
+        for _, _, msg in iter_messages(out, ["/segmenter/dynamic_mask"]):
+            masks.append(image_to_array(msg))
+    assert 35 <= len(masks) < 200
+    assert all(mask.shape == (188, 621) for mask in masks)

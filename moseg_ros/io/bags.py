@@ -2,20 +2,27 @@
 
 Writing: :class:`BagWriter` makes a rosbag2 folder (metadata.yaml + one .mcap or .db3 file) with CDR
 messages and ros2msg schemas of ROS 2 Jazzy, so the bag opens in rosbags, the mcap library, Foxglove
-and ``ros2 bag``. Reading: a rosbag2 folder (.mcap or .db3), a bare .mcap file, or a ROS 1 .bag.
+and ``ros2 bag``. MCAP output is chunk-compressed with zstd (chunks of about 1 MiB, written as they fill),
+so a run that is killed leaves every complete chunk readable.
+
+Reading: a rosbag2 folder (.mcap or .db3), a bare .mcap file, or a ROS 1 .bag. An MCAP file that is
+unfinished (a killed writer: no summary, no metadata.yaml) or damaged is read record by record up to the
+first unreadable byte; every reader ends a damaged bag with :class:`BagDamagedError`, which says how many
+messages came out before the damage.
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Iterable, Iterator
+from contextlib import closing
 from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
@@ -28,6 +35,7 @@ from moseg_ros.io.image import (
 )
 
 __all__ = [
+    "BagDamagedError",
     "BagWriter",
     "BagImage",
     "IMAGE_TYPE",
@@ -46,6 +54,17 @@ DEFAULT_IMAGE_TOPIC = "/camera/image_raw"
 GROUND_TRUTH_PREFIX = "/gt/"
 _STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 _NS = 1_000_000_000
+_COMPRESSIONS = (None, "zstd")
+
+
+class BagDamagedError(ValueError):
+    """A bag readable only in part: ``messages_read`` messages came out before ``reason`` stopped the reading."""
+
+    def __init__(self, path: str | Path, messages_read: int, reason: str) -> None:
+        self.path = Path(path)
+        self.messages_read = messages_read
+        self.reason = reason
+        super().__init__(f"bag {path} is damaged: {reason} (after {messages_read} readable messages)")
 
 
 def stamp_to_ns(stamp: Any) -> int:
@@ -76,10 +95,12 @@ class BagWriter:
     messages for :meth:`write`; ``counts`` holds messages written per topic.
     """
 
-    def __init__(self, path: str | Path, *, storage: str = "mcap") -> None:
+    def __init__(self, path: str | Path, *, storage: str = "mcap", compression: str | None = "zstd") -> None:
         path = Path(path)
         if storage not in _STORAGES:
             raise ValueError(f"unknown bag storage {storage!r}; use one of {sorted(_STORAGES)}")
+        if compression not in _COMPRESSIONS:
+            raise ValueError(f"unknown bag compression {compression!r}; use one of {_COMPRESSIONS}")
         if path.exists():
             raise FileExistsError(f"output bag already exists (not overwriting): {path}")
         if not path.parent.is_dir():
@@ -91,6 +112,10 @@ class BagWriter:
         self._connections: dict[str, Any] = {}
         # Metadata version 9 is what Jazzy's rosbag2 writes.
         self._writer = Writer(path, version=9, storage_plugin=_STORAGES[storage])
+        if compression is not None and storage == "mcap":
+            # Storage-level compression is MCAP's own chunk compression (as ros2 bag's mcap plugin writes it):
+            # each chunk stands alone, unlike file compression, which a killed run leaves unreadable.
+            self._writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self._writer.open()
 
     def __enter__(self) -> BagWriter:
@@ -206,10 +231,10 @@ def _bag_kind(path: str | Path) -> tuple[str, Path]:
     raise ValueError(f"unknown bag format: {path} (expected a rosbag2 folder, a .mcap file or a ROS 1 .bag)")
 
 
-def _mcap_typestore(summary: Any) -> Any:
-    """A typestore holding every message definition embedded in an MCAP file's schemas."""
+def _mcap_typestore(schemas: Iterable[Any]) -> Any:
+    """A typestore holding every message definition embedded in these MCAP schema records."""
     types: dict[str, Any] = {}
-    for schema in summary.schemas.values():
+    for schema in schemas:
         text = schema.data.decode()
         if schema.encoding == "ros2msg":
             types.update(get_types_from_msg(text, schema.name))
@@ -223,24 +248,123 @@ def _mcap_typestore(summary: Any) -> Any:
     return typestore
 
 
-def _mcap_summary(reader: Any, path: Path) -> Any:
-    summary = reader.get_summary()
+def _damage(error: BaseException) -> str:
+    """What stopped the reading of a damaged bag, in one line."""
+    if type(error).__name__ == "EndOfFile":
+        return "the file ends inside a record (truncated, or its writer was killed)"
+    text = str(error).strip().splitlines()
+    return f"{type(error).__name__}: {text[0]}" if text else type(error).__name__
+
+
+def _mcap_summary(path: Path) -> Any | None:
+    """The summary of an MCAP file, or None when it has none or it cannot be read (unfinished or damaged)."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as stream:
+        try:
+            return make_reader(stream).get_summary()
+        except Exception:  # any failure means "no usable index": the file is then streamed
+            return None
+
+
+def _stream_mcap(path: Path, topics: set[str] | None, counter: list[int]) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time, message) of an MCAP file in file order, record by record, up to the first damage.
+
+    Needs no summary or index, so it reads what a killed writer left. ``counter[0]`` counts the messages
+    yielded (also across files); a record that cannot be read raises :class:`BagDamagedError`.
+    """
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    typestores: dict[int, Any] = {}
+    with path.open("rb") as stream:
+        records = iter(StreamReader(stream, validate_crcs=True).records)
+        while True:
+            try:
+                record = next(records)
+                if isinstance(record, Schema):
+                    schemas[record.id] = record
+                elif isinstance(record, Channel):
+                    channels[record.id] = record
+                elif isinstance(record, Message):
+                    channel = channels[record.channel_id]
+                    if topics is not None and channel.topic not in topics:
+                        continue
+                    schema = schemas[channel.schema_id]
+                    if schema.id not in typestores:
+                        typestores[schema.id] = _mcap_typestore([schema])
+                    message = typestores[schema.id].deserialize_cdr(record.data, schema.name)
+                    counter[0] += 1
+                    yield channel.topic, record.log_time, message
+            except StopIteration:
+                return
+            except Exception as error:  # whatever the damage (length, CRC, codec), the readable part ends
+                raise BagDamagedError(path, counter[0], _damage(error)) from None
+
+
+def _scan_mcap_topics(path: Path) -> dict[str, str]:
+    """Topics and types of an MCAP file without a usable summary, from the channel records that can be read."""
+    from mcap.records import Channel, Schema
+    from mcap.stream_reader import StreamReader
+
+    schemas: dict[int, str] = {}
+    topics: dict[str, str] = {}
+    with path.open("rb") as stream:
+        try:
+            for record in StreamReader(stream).records:
+                if isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Channel) and record.schema_id in schemas:
+                    topics[record.topic] = schemas[record.schema_id]
+        except Exception:  # the damage itself is reported when the messages are read
+            pass
+    return topics
+
+
+def _rosbag2_mcap_files(folder: Path) -> list[Path]:
+    """The .mcap files of a rosbag2 folder in recording order (metadata.yaml's list, else by name)."""
+    import yaml
+
+    try:
+        info = yaml.safe_load((folder / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        files = [folder / name for name in info.get("relative_file_paths", [])]
+    except (OSError, yaml.YAMLError, KeyError, TypeError):
+        files = []
+    files = [f for f in files if f.suffix == ".mcap" and f.is_file()]
+    return files or sorted(folder.glob("*.mcap"))
+
+
+def _mcap_topics(path: Path) -> dict[str, str]:
+    summary = _mcap_summary(path)
     if summary is None:
-        raise ValueError(f"{path} has no MCAP summary section (not finished?); cannot list its topics")
-    return summary
+        return _scan_mcap_topics(path)
+    return {channel.topic: summary.schemas[channel.schema_id].name
+            for channel in summary.channels.values() if channel.schema_id in summary.schemas}
+
+
+def _open_any_reader(path: Path) -> Any | None:
+    """An open rosbags AnyReader, or None when a rosbag2 folder of MCAP files cannot be opened (then streamed)."""
+    reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY))
+    try:
+        reader.open()
+    except Exception as error:  # rosbags raises several types for a truncated or corrupt file
+        if path.is_dir() and _rosbag2_mcap_files(path):
+            return None
+        raise BagDamagedError(path, 0, _damage(error)) from None
+    return reader
 
 
 def list_topics(path: str | Path) -> dict[str, str]:
     """Topics of a bag and their message types ("sensor_msgs/msg/Image", ...)."""
     kind, path = _bag_kind(path)
     if kind == "mcap":
-        from mcap.reader import make_reader
-
-        with path.open("rb") as stream:
-            summary = _mcap_summary(make_reader(stream), path)
-            return {channel.topic: summary.schemas[channel.schema_id].name
-                    for channel in summary.channels.values() if channel.schema_id in summary.schemas}
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        return _mcap_topics(path)
+    reader = _open_any_reader(path)
+    if reader is None:
+        return {topic: msgtype for file in _rosbag2_mcap_files(path) for topic, msgtype in _mcap_topics(file).items()}
+    with closing(reader):
         return {topic: info.msgtype for topic, info in reader.topics.items() if info.msgtype}
 
 
@@ -251,29 +375,67 @@ def _check_topics(topics: Iterable[str] | None, available: dict[str, str]) -> se
     return wanted
 
 
+def _indexed_mcap(path: Path, summary: Any, wanted: set[str], counter: list[int]) -> Iterator[tuple[str, int, Any]]:
+    from mcap.reader import make_reader
+
+    typestore = _mcap_typestore(summary.schemas.values())
+    with path.open("rb") as stream:
+        messages = make_reader(stream).iter_messages(topics=sorted(wanted), log_time_order=True)
+        while True:
+            try:
+                schema, channel, message = next(messages)
+            except StopIteration:
+                return
+            except Exception as error:  # a chunk that cannot be read ends the readable part
+                raise BagDamagedError(path, counter[0], _damage(error)) from None
+            if channel.message_encoding != "cdr":
+                raise ValueError(f"{path}: topic {channel.topic} is {channel.message_encoding!r}, not cdr")
+            counter[0] += 1
+            yield channel.topic, message.log_time, typestore.deserialize_cdr(message.data, schema.name)
+
+
+def _mcap_messages(files: list[Path], topics: Iterable[str] | None) -> Iterator[tuple[str, int, Any]]:
+    """Messages of MCAP files: log-time order through the index when a file has one, file order otherwise."""
+    available = {topic: msgtype for file in files for topic, msgtype in _mcap_topics(file).items()}
+    wanted = _check_topics(topics, available)
+    counter = [0]
+    for file in files:
+        summary = _mcap_summary(file)
+        if summary is None:
+            yield from _stream_mcap(file, wanted, counter)
+        else:
+            yield from _indexed_mcap(file, summary, wanted, counter)
+
+
 def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, Any]]:
-    """(topic, log time ns, deserialized message) of the given topics (all if None), in log-time order."""
+    """(topic, log time ns, deserialized message) of the given topics (all if None), in log-time order.
+
+    An unfinished MCAP file (no summary) is read in file order, which is the order it was written in.
+    A damaged bag yields what can be read and then raises :class:`BagDamagedError`.
+    """
     kind, path = _bag_kind(path)
     if kind == "mcap":
-        from mcap.reader import make_reader
-
-        with path.open("rb") as stream:
-            reader = make_reader(stream)
-            summary = _mcap_summary(reader, path)
-            available = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()
-                         if c.schema_id in summary.schemas}
-            wanted = _check_topics(topics, available)
-            typestore = _mcap_typestore(summary)
-            for schema, channel, message in reader.iter_messages(topics=sorted(wanted), log_time_order=True):
-                if channel.message_encoding != "cdr":
-                    raise ValueError(f"{path}: topic {channel.topic} is {channel.message_encoding!r}, not cdr")
-                yield channel.topic, message.log_time, typestore.deserialize_cdr(message.data, schema.name)
+        yield from _mcap_messages([path], topics)
         return
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+    reader = _open_any_reader(path)
+    if reader is None:
+        yield from _mcap_messages(_rosbag2_mcap_files(path), topics)
+        return
+    count = 0
+    with closing(reader):
         wanted = _check_topics(topics, {c.topic: c.msgtype for c in reader.connections})
         connections = [c for c in reader.connections if c.topic in wanted]
-        for connection, log_time, raw in reader.messages(connections=connections):
-            yield connection.topic, log_time, reader.deserialize(raw, connection.msgtype)
+        messages = reader.messages(connections=connections)
+        while True:
+            try:
+                connection, log_time, raw = next(messages)
+                message = reader.deserialize(raw, connection.msgtype)
+            except StopIteration:
+                return
+            except Exception as error:  # sqlite, ROS 1 and MCAP readers each raise their own types
+                raise BagDamagedError(path, count, _damage(error)) from None
+            count += 1
+            yield connection.topic, log_time, message
 
 
 def _is_image_type(msgtype: str) -> bool:

@@ -185,6 +185,9 @@ def to_rgb(array: np.ndarray, encoding: str) -> np.ndarray:
     raise ImageDecodeError(f"cannot convert {encoding!r} to RGB (not a colour or intensity image)")
 
 
+_HEADER_ERRORS = (PIL.UnidentifiedImageError, OSError, ValueError, PIL.Image.DecompressionBombError)
+
+
 def compressed_size(buf: np.ndarray) -> tuple[int, int]:
     """(width, height) from a compressed image's header, without decoding its pixels.
 
@@ -193,16 +196,30 @@ def compressed_size(buf: np.ndarray) -> tuple[int, int]:
     try:
         with PIL.Image.open(io.BytesIO(buf.tobytes())) as header:
             return header.size
-    except (PIL.UnidentifiedImageError, OSError, ValueError, PIL.Image.DecompressionBombError) as error:
+    except _HEADER_ERRORS as error:
         raise ImageDecodeError(f"cannot read the image header: {error}") from None
+
+
+def _pillow_pixels(image: PIL.Image.Image) -> np.ndarray:
+    """Pixels of a loaded Pillow image: (H, W) uint8 or uint16 for grey modes, (H, W, 3) uint8 RGB otherwise."""
+    if image.mode in ("I", "I;16", "I;16B", "I;16L", "I;16N"):
+        return np.clip(np.asarray(image), 0, 65535).astype(np.uint16)
+    if image.mode == "F":
+        raise ImageDecodeError("floating-point compressed images are not supported")
+    if image.mode in ("1", "L", "LA"):
+        return np.asarray(image.convert("L"))
+    return np.asarray(image.convert("RGB"))
 
 
 def compressed_to_array(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     """Decode a sensor_msgs/CompressedImage to (H, W, 3) uint8 RGB, or (H, W) uint8 for a grey image.
 
     The ``format`` string ("jpeg", "png", "rgb8; jpeg compressed bgr8", ...) is only checked for a known
-    codec; cv2.imdecode reads the actual codec from the bytes. 16-bit PNGs are returned as uint16. With
+    codec; the codec itself is read from the bytes. 16-bit grey PNGs are returned as uint16. With
     ``max_pixels``, the size in the header is checked first and a larger image is refused undecoded.
+    Pillow decodes (not cv2.imdecode) because libjpeg and libpng print every recoverable defect of a
+    damaged stream straight to stderr from inside OpenCV, which a stream of bad frames turns into a flood;
+    Pillow reports a truncated stream as an error, here an :class:`ImageDecodeError`.
     """
     fmt = str(msg.format).lower()
     if fmt and not any(codec in fmt for codec in ("jpeg", "jpg", "png", "tiff", "bmp", "webp")):
@@ -210,17 +227,16 @@ def compressed_to_array(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     buf = _buffer(msg.data)
     if buf.size == 0:
         raise ImageDecodeError(f"empty data in a CompressedImage ({msg.format!r})")
-    if max_pixels is not None:
-        check_pixel_count(*compressed_size(buf), max_pixels, f"a {msg.format!r} CompressedImage")
-    decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
-    if decoded is None:
-        raise ImageDecodeError(f"cv2.imdecode could not decode {buf.size} bytes of {msg.format!r}")
-    if decoded.ndim == 3 and decoded.shape[2] == 1:
-        decoded = decoded[:, :, 0]
-    if decoded.ndim == 2:
-        return decoded
-    code = cv2.COLOR_BGRA2RGB if decoded.shape[2] == 4 else cv2.COLOR_BGR2RGB
-    return cv2.cvtColor(decoded, code)
+    try:
+        with PIL.Image.open(io.BytesIO(buf.tobytes())) as image:
+            if max_pixels is not None:
+                check_pixel_count(*image.size, max_pixels, f"a {msg.format!r} CompressedImage")
+            image.load()
+            return _pillow_pixels(image)
+    except ImageDecodeError:
+        raise
+    except Exception as error:  # Pillow's codec plug-ins raise OSError, EOFError, SyntaxError... on bad streams
+        raise ImageDecodeError(f"could not decode {buf.size} bytes of {msg.format!r}: {error}") from None
 
 
 def array_to_image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:

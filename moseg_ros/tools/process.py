@@ -2,7 +2,9 @@
 
 Deterministic and DDS-free: the same frames always give the same masks. Output topics are named as the
 node's (``/segmenter/dynamic_mask`` ...), so every consumer reads both kinds of output bag alike.
-A frame that cannot be decoded is skipped, counted and listed; nothing is dropped silently.
+A frame that cannot be decoded is skipped, counted and listed; nothing is dropped silently. A damaged
+input bag is processed up to the damage: the output holds the masks of every frame before it and the
+counts say where and why the reading stopped.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.io.bags import BagWriter, read_images
+from moseg_ros.io.bags import BagDamagedError, BagWriter, read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -27,39 +29,50 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
     """Segment every image of ``bag`` and write the three mask topics to ``output`` (rosbag2 MCAP).
 
     Returns:
-        Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, and timing.
+        Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing, and
+        ``input_damage`` (None, or why the reading of a damaged input stopped).
     """
     pipeline = Pipeline(config)
-    counts: dict[str, Any] = {"frames_in": 0, "masks_out": 0, "skipped": [], "resets": 0, "statuses": {}}
-    seconds = []
+    counts: dict[str, Any] = {"frames_in": 0, "masks_out": 0, "skipped": [], "resets": 0, "statuses": {},
+                              "input_damage": None}
+    seconds: list[float] = []
     start = time.perf_counter()
     with BagWriter(output) as writer:
-        for image in read_images(bag, image_topic):
-            counts["frames_in"] += 1
-            try:
-                frame = decode_frame(image.msg)
-            except ValueError as error:
-                counts["skipped"].append({"stamp_ns": image.stamp_ns, "reason": str(error)})
-                continue
-            result = pipeline.process(frame, image.stamp_ns)
-            status = result.status.split(":")[0]
-            counts["statuses"][status] = counts["statuses"].get(status, 0) + 1
-            seconds.append(result.seconds)
-            for name, array, encoding in (("dynamic_mask", result.masks.dynamic, "mono8"),
-                                          ("static_mask", result.masks.static, "mono8"),
-                                          ("instance_labels", result.masks.instance_labels, "32SC1")):
-                writer.write_image(f"{OUTPUT_PREFIX}/{name}", image.stamp_ns, image.frame_id, array, encoding,
-                                   log_time_ns=image.log_time_ns)
-            counts["masks_out"] += 1
-            if progress:
-                print(f"\r{counts['frames_in']} frames, {result.seconds * 1e3:.0f} ms/frame", end="",
-                      file=sys.stderr, flush=True)
+        try:
+            for image in read_images(bag, image_topic):
+                _process_image(pipeline, image, writer, counts, seconds)
+                if progress:
+                    print(f"\r{counts['frames_in']} frames, {seconds[-1] * 1e3 if seconds else 0:.0f} ms/frame",
+                          end="", file=sys.stderr, flush=True)
+        except BagDamagedError as error:
+            counts["input_damage"] = str(error)
     if progress:
         print(file=sys.stderr)
     counts["resets"] = pipeline.resets
     counts["seconds_total"] = time.perf_counter() - start
     counts["ms_per_frame_mean"] = 1e3 * sum(seconds) / max(len(seconds), 1)
     return counts
+
+
+def _process_image(pipeline: Pipeline, image: Any, writer: BagWriter, counts: dict[str, Any],
+                   seconds: list[float]) -> None:
+    """Segment one bag image and write its three masks, or count it as skipped when it cannot be decoded."""
+    counts["frames_in"] += 1
+    try:
+        frame = decode_frame(image.msg)
+    except ValueError as error:
+        counts["skipped"].append({"stamp_ns": image.stamp_ns, "reason": str(error)})
+        return
+    result = pipeline.process(frame, image.stamp_ns)
+    status = result.status.split(":")[0]
+    counts["statuses"][status] = counts["statuses"].get(status, 0) + 1
+    seconds.append(result.seconds)
+    for name, array, encoding in (("dynamic_mask", result.masks.dynamic, "mono8"),
+                                  ("static_mask", result.masks.static, "mono8"),
+                                  ("instance_labels", result.masks.instance_labels, "32SC1")):
+        writer.write_image(f"{OUTPUT_PREFIX}/{name}", image.stamp_ns, image.frame_id, array, encoding,
+                           log_time_ns=image.log_time_ns)
+    counts["masks_out"] += 1
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,7 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Process the bag and print the counts; exit 1 when a frame was skipped, 2 when the bag cannot be used."""
+    """Process the bag and print the counts; exit 1 when a frame was skipped or the input is damaged (its
+    readable part is processed), 2 when the bag cannot be used at all."""
     try:
         counts = process_bag(args.bag, args.output, image_topic=args.topic, config=pipeline_config(args),
                              progress=not args.no_progress)
@@ -80,4 +94,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"moseg process: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(counts, indent=2))
-    return 1 if counts["skipped"] else 0
+    if counts["input_damage"]:
+        print(f"moseg process: warning: {counts['input_damage']}; wrote the masks of the {counts['masks_out']} "
+              "frames before it", file=sys.stderr)
+    return 1 if counts["skipped"] or counts["input_damage"] else 0

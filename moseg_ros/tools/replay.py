@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from moseg_ros.io.bags import BagWriter, iter_messages, list_topics, pick_image_topic
+from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, list_topics, pick_image_topic
 from moseg_ros.tools.dds import use_loopback
 
 OUTPUTS = {
@@ -44,6 +44,7 @@ class ReplayReport:
         latency_ms: per returned mask, wall time from publishing the image to receiving its mask.
         outputs: messages recorded per output topic.
         diagnostics: the key/values of the node's last /diagnostics status.
+        input_damage: None, or why the reading of a damaged input bag stopped (what came before was replayed).
     """
 
     frames_in: int = 0
@@ -53,6 +54,7 @@ class ReplayReport:
     latency_ms: list[float] = field(default_factory=list)
     outputs: dict[str, int] = field(default_factory=dict)
     diagnostics: dict[str, str] = field(default_factory=dict)
+    input_damage: str | None = None
 
     def summary(self) -> dict[str, Any]:
         """The report as JSON-ready numbers (latency percentiles instead of the raw list)."""
@@ -63,7 +65,7 @@ class ReplayReport:
             "header_mismatches": self.header_mismatches,
             "latency_ms_p50": float(np.percentile(latency, 50)),
             "latency_ms_p95": float(np.percentile(latency, 95)),
-            "outputs": self.outputs, "node_diagnostics": self.diagnostics,
+            "outputs": self.outputs, "node_diagnostics": self.diagnostics, "input_damage": self.input_damage,
         }
 
 
@@ -205,8 +207,11 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
                   and node.count_publishers(recorder.mask_topic) > 0, discovery_timeout,
                   f"a segmenter subscribed to {topic} and publishing {recorder.mask_topic}")
             time.sleep(0.5)  # let the remaining endpoints of both participants match
-            _publish_all(_rclpy_messages(Path(bag), topics), publishers, topic, topics, writer, recorder, rate,
-                         sent, report)
+            try:
+                _publish_all(_rclpy_messages(Path(bag), topics), publishers, topic, topics, writer, recorder, rate,
+                             sent, report)
+            except BagDamagedError as error:
+                report.input_damage = str(error)
             _wait(lambda: recorder.has_all_outputs(list(sent)), drain_timeout, "the last masks") if sent else None
         except TimeoutError as error:
             if not sent:
@@ -271,7 +276,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Replay and print the account; exit 1 when any frame got no mask, 2 when replay could not start."""
+    """Replay and print the account; exit 1 when any frame got no mask or the input is damaged, 2 when replay
+    could not start."""
     try:
         report = replay(args.bag, args.output, image_topic=args.topic, segmenter=args.segmenter, rate=args.rate,
                         discovery_timeout=args.discovery_timeout, drain_timeout=args.drain_timeout,
@@ -283,4 +289,7 @@ def run(args: argparse.Namespace) -> int:
     print(json.dumps({k: v for k, v in summary.items() if k != "missing_stamps"}, indent=2))
     if report.missing_stamps:
         print(f"{len(report.missing_stamps)} frames got no mask: first stamps {report.missing_stamps[:10]}")
-    return 0 if not report.missing_stamps else 1
+    if report.input_damage:
+        print(f"moseg replay: warning: {report.input_damage}; replayed the {report.frames_in} frames before it",
+              file=sys.stderr)
+    return 0 if not report.missing_stamps and not report.input_damage else 1
