@@ -18,7 +18,7 @@ from moseg_ros.params import SettingsError
 COMMANDS: dict[str, tuple[str, str]] = {
     "synth": ("moseg_ros.synth.cli", "render a synthetic street scene with ground truth into a bag"),
     "kitti2bag": ("moseg_ros.io.kitti", "convert a KITTI raw or odometry sequence into an MCAP bag"),
-    "process": ("moseg_ros.tools.process", "run the pipeline in-process over every frame of a bag"),
+    "process": ("moseg_ros.tools.process", "run the pipeline in-process over every frame of a bag (or many, on Ray)"),
     "replay": ("moseg_ros.tools.replay", "replay a bag to a running segmenter and record its outputs"),
     "demo": ("moseg_ros.tools.demo", "the demo: synthetic bag -> real node over DDS -> scored masks"),
     "synth-eval": ("moseg_ros.synth.evaluate", "per-object decisions of the pipeline on the synthetic presets"),
@@ -35,6 +35,7 @@ GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
     "bench": ("speed benchmarks that print numbers", {
         "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),
         "synth": ("moseg_ros.bench.synth", "frames per second of the synthetic street renderer"),
+        "fleet": ("moseg_ros.bench.fleet", "bags per second of `moseg process` over many bags, sequential and on Ray"),
     }),
 }
 

@@ -318,8 +318,9 @@ def _scan_mcap_topics(path: Path) -> dict[str, str]:
                     schemas[record.id] = record.name
                 elif isinstance(record, Channel) and record.schema_id in schemas:
                     topics[record.topic] = schemas[record.schema_id]
-        except Exception:  # the damage itself is reported when the messages are read
-            pass
+        except Exception as error:  # damage after the channels is reported when the messages are read
+            if not topics:
+                raise BagDamagedError(path, 0, _damage(error)) from None
     return topics
 
 

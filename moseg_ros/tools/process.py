@@ -1,5 +1,9 @@
 """Run the pipeline in-process over every frame of a bag and write the masks with the inputs' stamps.
 
+``moseg process IN -o OUT`` writes the output bag OUT. With several inputs, a folder of bags, or ``--ray``,
+OUT is a folder that gets one output bag per input (``OUT/<input name>/``) and ``summary.json``; the bags
+run one after another, or as Ray tasks with ``--ray`` (tools/fleet.py).
+
 Deterministic and DDS-free: the same frames always give the same masks. Output topics are named as the
 node's (``/segmenter/dynamic_mask`` ...), so every consumer reads both kinds of output bag alike.
 A frame that cannot be decoded is skipped, counted and listed; nothing is dropped silently. A damaged
@@ -16,7 +20,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.io.bags import BagDamagedError, BagWriter, read_images
+from moseg_ros.io.bags import BagDamagedError, BagWriter, list_topics, pick_image_topic, read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -37,9 +41,10 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
                               "input_damage": None}
     seconds: list[float] = []
     start = time.perf_counter()
+    topic = pick_image_topic(list_topics(bag), image_topic)  # an unusable input fails before the output exists
     with BagWriter(output) as writer:
         try:
-            for image in read_images(bag, image_topic):
+            for image in read_images(bag, topic):
                 _process_image(pipeline, image, writer, counts, seconds)
                 if progress:
                     print(f"\r{counts['frames_in']} frames, {seconds[-1] * 1e3 if seconds else 0:.0f} ms/frame",
@@ -77,18 +82,53 @@ def _process_image(pipeline: Pipeline, image: Any, writer: BagWriter, counts: di
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg process`."""
-    parser.add_argument("bag", type=Path, help="input bag: rosbag2 folder, .mcap file or ROS 1 .bag")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="output rosbag2 MCAP folder")
+    parser.add_argument("bags", type=Path, nargs="+", metavar="IN",
+                        help="input bag(s): rosbag2 folder, .mcap file or ROS 1 .bag, or a folder of bags")
+    parser.add_argument("-o", "--output", type=Path, required=True,
+                        help="output rosbag2 MCAP folder; with several bags, the folder of one output bag per input")
     parser.add_argument("--topic", help="image topic (default: the bag's one camera image topic)")
-    parser.add_argument("--no-progress", action="store_true", help="do not print per-frame progress")
+    parser.add_argument("--no-progress", action="store_true", help="do not print progress")
+    parser.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+                        help="one Ray task per bag: alone, a local Ray on this machine's cores; with an address "
+                             "('auto', 'ray://host:10001') that cluster")
+    parser.add_argument("--workers", type=int, metavar="N", help="at most N bags at a time with --ray")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="redo bags whose output is complete (skipped otherwise)")
     add_settings_arguments(parser)
+
+
+def _is_fleet(args: argparse.Namespace) -> bool:
+    from moseg_ros.tools.fleet import is_bag
+
+    return len(args.bags) > 1 or args.ray is not None or not is_bag(args.bags[0])
+
+
+def run_fleet(args: argparse.Namespace) -> int:
+    """Process every bag into the output folder and print the table; exit 1 when a bag failed or was damaged."""
+    from moseg_ros.tools.fleet import process_fleet, summary_table
+
+    if args.workers is not None and args.workers < 1:
+        print(f"moseg process: error: --workers must be >= 1, got {args.workers}", file=sys.stderr)
+        return 2
+    try:
+        summary = process_fleet(args.bags, args.output, pipeline_config(args), image_topic=args.topic,
+                                ray_address=args.ray, workers=args.workers, overwrite=args.overwrite,
+                                progress=not args.no_progress)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"moseg process: error: {error}", file=sys.stderr)
+        return 2
+    print(summary_table(summary))
+    totals = summary["totals"]
+    return 1 if totals["failed"] or totals["damaged"] else 0
 
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag and print the counts; exit 1 when a frame was skipped or the input is damaged (its
     readable part is processed), 2 when the bag cannot be used at all."""
+    if _is_fleet(args):
+        return run_fleet(args)
     try:
-        counts = process_bag(args.bag, args.output, image_topic=args.topic, config=pipeline_config(args),
+        counts = process_bag(args.bags[0], args.output, image_topic=args.topic, config=pipeline_config(args),
                              progress=not args.no_progress)
     except (FileNotFoundError, FileExistsError, ValueError) as error:
         print(f"moseg process: error: {error}", file=sys.stderr)
