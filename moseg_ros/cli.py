@@ -35,6 +35,8 @@ GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
     "bench": ("speed benchmarks that print numbers", {
         "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),
         "synth": ("moseg_ros.bench.synth", "frames per second of the synthetic street renderer"),
+        "soak": ("moseg_ros.bench.soak", "the real node fed a bag's frames looped at a camera rate: masks, "
+                 "latency, drops, memory, CPU"),
         "fleet": ("moseg_ros.bench.fleet", "bags per second of `moseg process` over many bags, sequential and on Ray"),
     }),
 }

@@ -76,11 +76,12 @@ class SegmenterNode(Node):
             self.declare_parameter(name, default, descriptor)
         self.settings = {name: self.get_parameter(name).value for name in PARAMETERS}
         self._check_choices()
-        self.pipeline = Pipeline(self._pipeline_config())
+        self.pipeline = Pipeline(self._pipeline_config(), live=True)
 
         self.counters = _Counters()
         self.statuses: collections.Counter[str] = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=500)
+        self._refit_ages: collections.deque[int | None] = collections.deque(maxlen=500)
         self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
         self._departures: collections.deque[float] = collections.deque(maxlen=100)
         self._queue: collections.deque[tuple[Any, float]] = collections.deque()
@@ -217,6 +218,7 @@ class SegmenterNode(Node):
         result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame))
         kind = result.status.split(":")[0]
         self.statuses[kind] += 1
+        self._refit_ages.append(result.refit_age)
         if kind == "reset":
             self.counters.resets += 1
             self._warn("reset", f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
@@ -254,6 +256,7 @@ class SegmenterNode(Node):
             "latency_ms_p50": f"{np.percentile(latencies, 50):.1f}",
             "latency_ms_p95": f"{np.percentile(latencies, 95):.1f}",
             "queued": len(self._queue),
+            **_refit_age_values(self._refit_ages),
             "calibrated": self.camera_matrix is not None,
             **{f"status_{kind}": count for kind, count in sorted(self.statuses.items())},
         }
@@ -263,11 +266,22 @@ class SegmenterNode(Node):
         self.pub_diagnostics.publish(array)
 
     def stop(self) -> None:
-        """Stop the worker thread after the frame it is on."""
+        """Stop the worker thread after the frame it is on, then the pipeline's refit worker."""
         with self._wake:
             self._running = False
             self._wake.notify_all()
         self._worker.join(timeout=5.0)
+        self.pipeline.close()
+
+
+def _refit_age_values(ages: collections.deque[int | None]) -> dict[str, str]:
+    """How old the refit decisions of the recent frames were, in frames (with a background refit: 1 when the
+    worker keeps up with the camera, more when frames come faster than it refits)."""
+    known = [age for age in ages if age is not None]
+    if not known:
+        return {}
+    return {"refit_age_last": str(known[-1]), "refit_age_max": str(max(known)),
+            "refit_age_mean": f"{np.mean(known):.2f}"}
 
 
 def _rate(times: collections.deque[float]) -> float:

@@ -12,7 +12,7 @@ empty mask with status ``failed: <reason>``; both restart the window.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -25,6 +25,7 @@ from moseg_ros.methods import DEFAULT_METHOD, METHODS as METHOD_CLASSES
 from moseg_ros.methods.base import FrameInput, Status
 from moseg_ros.params import check_all, setting
 from moseg_ros.render import Masks, render_masks
+from moseg_ros.timing import Stages
 
 METHODS = tuple(METHOD_CLASSES)
 # auto: each method's own preset (methods/*.py: fast for moving_objects and epipolar_baseline; medium for
@@ -33,6 +34,7 @@ FLOW_PRESETS = ("auto", *DIS_PRESETS)
 # Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
 # 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
 MIN_WORKING_SIDE = 32
+REFIT_MODES = ("auto", "background", "inline")
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,16 @@ class PipelineConfig:
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")
+    refit: str = setting("auto", "moving_objects: where the motion models are refitted: background (a worker "
+                         "thread; a frame's mask never waits for a refit and applies the newest one done), inline "
+                         "(every frame waits for its own; deterministic), auto (background in the node, inline in "
+                         "the offline tools)", choices=REFIT_MODES)
+
+    def refit_mode(self, live: bool) -> str:
+        """background or inline: what refit stands for in a live stream (the node) or offline (tools)."""
+        if self.refit != "auto":
+            return self.refit
+        return "background" if live else "inline"
 
     def dis_preset(self) -> str:
         """The DIS preset that flow_preset stands for (auto: by method)."""
@@ -91,6 +103,11 @@ class FrameResult:
         dynamic_ids: (D,) ids of the instances flagged as moving.
         seconds: processing time of this frame.
         reason: why, for reset and failed.
+        refit_age: frames between this frame and the refit whose decision it got (0: its own; None: none).
+        refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
+        stages: seconds per stage of this frame: prepare (grey, resize), the method's own stages (for
+            moving_objects: tracks, fit, flow, dense_fit, regions and method_other; "decision" for methods that
+            report none), render.
     """
 
     stamp_ns: int
@@ -99,6 +116,9 @@ class FrameResult:
     dynamic_ids: np.ndarray
     seconds: float
     reason: str = ""
+    stages: dict[str, float] = field(default_factory=dict)
+    refit_age: int | None = None
+    refit_stages: dict[str, float] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
@@ -106,17 +126,32 @@ class FrameResult:
         return f"{self.kind.value}: {self.reason}" if self.reason else self.kind.value
 
 
+def _stage_seconds(shell: dict[str, float], method: dict[str, float]) -> dict[str, float]:
+    """The shell's stages with "decision" split into the method's own stages when it reports them (and
+    "method_other", the rest of the method's time)."""
+    if not method:
+        return shell
+    other = max(0.0, shell["decision"] - sum(method.values()))
+    return {"prepare": shell["prepare"], **method, "method_other": other, "render": shell["render"]}
+
+
 class Pipeline:
     """Streaming motion segmentation: the shell every method shares (checks, resets, resizing, masks, timing)."""
 
-    def __init__(self, config: PipelineConfig = PipelineConfig()) -> None:
+    def __init__(self, config: PipelineConfig = PipelineConfig(), *, live: bool = False) -> None:
+        """``live``: frames come from a camera (the node), so refit ``auto`` runs on a worker thread; offline
+        (the tools) every frame waits for its own refit and the same frames always give the same masks."""
         config.validate()
-        self.config = config
-        self.method = METHOD_CLASSES[config.method](config)
+        self.config = replace(config, refit=config.refit_mode(live))
+        self.method = METHOD_CLASSES[config.method](self.config)
         self._instance_model = TorchScriptInstances(config.instance_model) if config.instance_model else None
         self._last_stamp: int | None = None
         self._input_size: tuple[int, int] | None = None
         self.resets = 0
+
+    def close(self) -> None:
+        """Stop the method's refit worker, if it has one (the pipeline takes no frames afterwards)."""
+        self.method.close()
 
     def reset(self) -> None:
         """Clear the window (the next frame starts a new stream)."""
@@ -166,19 +201,25 @@ class Pipeline:
         if reason is not None:
             self.reset()
             self.resets += 1
+        stages = Stages()
         try:
-            if instances is None and self._instance_model is not None:
-                instances = self._instance_model(image)
-            decision = self.method.step(self._frame_input(image, instances, camera_matrix))
+            with stages("prepare"):
+                if instances is None and self._instance_model is not None:
+                    instances = self._instance_model(image)
+                frame = self._frame_input(image, instances, camera_matrix)
+            with stages("decision"):
+                decision = self.method.step(frame)
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
             self.reset()
             return self._empty(stamp_ns, size, Status.FAILED,
                                f"{type(error).__name__}: {error}".splitlines()[0], start)
         self._last_stamp, self._input_size = stamp_ns, size
-        masks = render_masks(decision.labels, decision.dynamic_ids, size, self.config.mask_margin_px)
+        with stages("render"):
+            masks = render_masks(decision.labels, decision.dynamic_ids, size, self.config.mask_margin_px)
         kind = Status.RESET if reason is not None else decision.status
         return FrameResult(stamp_ns, masks, kind, decision.dynamic_ids, time.perf_counter() - start,
-                           reason=reason or "")
+                           reason=reason or "", stages=_stage_seconds(stages.seconds, decision.stages),
+                           refit_age=decision.refit_age, refit_stages=decision.refit_stages)
 
     def _frame_input(self, image: np.ndarray, instances: np.ndarray | None,
                      camera_matrix: np.ndarray | None) -> FrameInput:

@@ -17,3 +17,46 @@ def test_pipeline_bench_prints_timing_for_both_methods(capsys):
 def test_object_level_bench_needs_the_synthetic_instances(tmp_path, capsys):
     assert main(["bench", "pipeline", str(tmp_path), "--method", "object_level"]) == 2
     assert "needs instance maps" in capsys.readouterr().out
+
+
+def test_pipeline_bench_reports_stages_floor_and_the_refit_worker(textured_bag, tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "pipeline", str(textured_bag), "--frames", "12", "--json", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    result = json.loads(out.read_text())
+    assert printed == result
+    assert result["method"] == "moving_objects" and result["refit"] == "background" and result["frames"] == 11
+    for key in ("ms_p50", "ms_p95", "floor_ms_p50", "floor_ms_p95", "refit_ms_p50", "refit_ms_p95"):
+        assert result[key] > 0, key
+    assert result["ratio"] == result["ms_p95"] / result["floor_ms_p95"]
+    assert {"decode", "prepare", "tracks", "flow", "regions", "render"} <= set(result["stages"])
+    assert "fit" not in result["stages"]  # on the worker, not on the frame path
+    assert result["refits"] >= 1 and result["refit_age_max"] >= 1
+    inline = main(["bench", "pipeline", str(textured_bag), "--frames", "6", "--set", "refit=inline"])
+    assert inline == 0 and {"fit", "dense_fit"} <= set(json.loads(capsys.readouterr().out)["stages"])
+
+
+def test_memory_slope_and_process_sample():
+    import os
+
+    from moseg_ros.bench.soak import memory_slope, process_sample
+
+    samples = [(t, 100.0 + 0.5 * t, 0.0) for t in range(0, 300, 10)]  # 0.5 MB/s = 30 MB/min
+    assert abs(memory_slope(samples, 60.0) - 30.0) < 1e-6
+    assert memory_slope(samples[:3], 60.0) != memory_slope(samples[:3], 60.0)  # too few samples: nan
+    rss, cpu = process_sample(os.getpid())
+    assert rss > 10 and cpu > 0
+
+
+def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path, capsys):
+    out = tmp_path / "soak.json"
+    code = main(["bench", "soak", str(textured_bag), "--rate", "5", "--seconds", "4", "--domain", str(ros_domain),
+                 "--set", "queue_size=2", "--json", str(out)])
+    report = json.loads(out.read_text())
+    assert code == 0, report
+    assert report["frames"] == 20 and 0 < report["masks"] <= 20
+    assert report["masked_fraction"] == report["masks"] / 20
+    assert 0 < report["latency_ms_p50"] <= report["latency_ms_p95"]
+    assert report["node_dropped"] >= 0 and report["node_exit_code"] == 0
+    assert report["rss_mb_start"] > 10 and report["rss_mb_end"] > 10 and report["cpu_percent"] > 0
+    assert main(["bench", "soak", str(textured_bag), "--set", "nope=1"]) == 2

@@ -3,7 +3,9 @@
 Three runs on the same copies: one after another in this process, on Ray with one worker, and on Ray with
 every core. Prints bags/s of each, the speed-up of all cores over the sequential run, and Ray's overhead per
 bag (one worker against the sequential run), plus Ray's start-up apart (starting Ray and one warm worker
-per core). Every run uses one thread per bag.
+per core). Every run uses one thread per bag. ``parallel_ceiling`` is what the machine itself gives: the
+throughput of a fixed pure-Python loop in as many processes as workers against one process (a machine
+whose cores share a physical core or a CPU quota gives less than the number of cores).
 """
 
 from __future__ import annotations
@@ -39,9 +41,29 @@ def _demo_bag(folder: Path, frames: int) -> Path:
     return folder / "street"
 
 
+def _spin(n: int) -> int:
+    return sum(range(n))
+
+
+def parallel_ceiling(processes: int, n: int = 60_000_000) -> float:
+    """Throughput of ``processes`` processes each summing range(n), against one process doing it once."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(processes) as pool:
+        list(pool.map(_spin, [1000] * processes))  # start the processes before timing
+        start = time.perf_counter()
+        pool.submit(_spin, n).result()
+        alone = time.perf_counter() - start
+        start = time.perf_counter()
+        list(pool.map(_spin, [n] * processes))
+        together = time.perf_counter() - start
+    return processes * alone / together
+
+
 def bench_fleet(bag: Path, copies: int, config: PipelineConfig = PipelineConfig(),
                 workers: int | None = None) -> dict[str, Any]:
-    """Process ``copies`` copies of ``bag`` three ways and return the timings (seconds, bags/s, speed-up)."""
+    """Process ``copies`` copies of ``bag`` three ways and return the timings (seconds, bags/s, speed-up,
+    Ray's start-up and overhead per bag, the machine's parallel ceiling)."""
     import ray
 
     workers = workers or os.cpu_count() or 1
@@ -69,6 +91,7 @@ def bench_fleet(bag: Path, copies: int, config: PipelineConfig = PipelineConfig(
             raise RuntimeError(f"{failed} bag(s) failed in the {name} run: {run['bags']}")
         result[name] = {"seconds": run["seconds"], "bags_per_second": copies / run["seconds"]}
     result["speedup"] = sequential["seconds"] / every["seconds"]
+    result["parallel_ceiling"] = parallel_ceiling(workers)
     result["ray_overhead_seconds_per_bag"] = (one["seconds"] - sequential["seconds"]) / copies
     return result
 

@@ -28,9 +28,10 @@ from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix, moving_tracks, pair_evidence
-from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.flow import DenseFlow, pixel_grid
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
+from moseg_ros.timing import Stages
 
 
 @dataclass(frozen=True)
@@ -78,60 +79,172 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
     return mask.astype(bool)
 
 
+@dataclass(frozen=True)
+class Observation:
+    """What the refit needs from one frame, taken on the frame path and not changed afterwards.
+
+    Attributes:
+        index: the frame's number since the last reset.
+        pair: (ids, points) of the frames ``gap`` back and now, or None before there are two.
+        alive: ids of the tracks living now.
+        camera_matrix: (3, 3) K at the tracking size (guessed when ``guessed``).
+        guessed: True when K is a guess (no camera_info).
+        flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None.
+        gray: the frame at the dense size (for the texture gate).
+    """
+
+    index: int
+    pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+    alive: np.ndarray
+    camera_matrix: np.ndarray
+    guessed: bool
+    flows: tuple[np.ndarray, np.ndarray] | None
+    gray: np.ndarray
+
+
+@dataclass(frozen=True)
+class Refit:
+    """The motion evidence fitted on one observation: which tracks move, and the dense residual mask."""
+
+    index: int
+    flagged: np.ndarray
+    dense: np.ndarray | None
+    stages: dict[str, float]
+
+
 class MotionFrontEnd:
-    """Turns a stream of grey frames into moving regions with persistent ids."""
+    """Turns a stream of grey frames into moving regions with persistent ids.
+
+    Per frame, :meth:`update` is :meth:`observe` (tracks and flow: the frame path), :meth:`refit` (the fits
+    and tests) and :meth:`apply` (hulls of the moving tracks where they are now, the dense mask carried to
+    now, regions). A caller may run ``refit`` elsewhere (moseg_ros/refit.py) and apply the newest refit
+    that is done: ``apply`` draws the tracks a refit flagged at their current positions and warps its dense
+    mask along the flow of the frames since. ``refit`` touches only its own state (the window's pair fits
+    and the sticky flags), ``observe`` and ``apply`` only theirs.
+    """
 
     def __init__(self, config: MotionFrontEndConfig = MotionFrontEndConfig(), flow: DenseFlow | None = None) -> None:
         self.config = config
         self._points = PointTracker(config.tracks)
         self._flow = flow or DenseFlow("fast")
         self._regions = InstanceTracker()
+        self.stages = Stages()
         self.reset()
 
     def reset(self) -> None:
         """Forget every frame, track and region."""
         self._points.reset()
         self._regions.reset()
+        self._index = -1
         self._frames: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
             maxlen=self.config.track_motion.gap + 1)
+        self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
+        # The backward dense flow (frame -> the one before) of the last frames, to carry an older refit's
+        # dense mask to the current frame.
+        self._backward: collections.deque[tuple[int, np.ndarray]] = collections.deque(
+            maxlen=self.config.window_length)
+        self.reset_refit()
+        self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
+        self.moving = np.zeros((0, 0), dtype=bool)
+
+    def reset_refit(self) -> None:
+        """Forget the refit's state: the window's pair fits and the sticky flags."""
         # One (track ids, distances, signed parallax or None) per frame pair (m, m + gap) of the window:
         # each pair is fitted once.
         self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
-        self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
-        self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
-        self.moving = np.zeros((0, 0), dtype=bool)
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
         matrix at this size; returns (h, w) int32 moving regions with persistent ids at the dense size
         (``dense_width`` wide).
 
-        ``moving`` then holds the frame's (h, w) bool evidence (hulls and dense residual) before grouping, and
-        ``moving_track_points`` the (M, 2) positions of its moving tracks (tracking pixels)."""
-        self._points.update(gray)
-        self._frames.append((self._points.ids.copy(), self._points.points.copy()))
-        small = self._dense_size(gray.shape)
-        self._grays.append(cv2.resize(gray, small[::-1], interpolation=cv2.INTER_AREA) if small != gray.shape
-                           else gray)
-        self._guessed = camera_matrix is None
-        K = guessed_camera_matrix(gray.shape) if self._guessed else camera_matrix
-        moving = self._sparse_mask(small, small[1] / gray.shape[1], K)
+        ``moving`` then holds the frame's (h, w) bool evidence (hulls and dense residual) before grouping,
+        ``moving_track_points`` the (M, 2) positions of its moving tracks (tracking pixels), and
+        ``stages.seconds`` the time of each stage: tracks, flow (dense flow both ways), fit (pair fits and
+        the track test), dense_fit (the dense residual test) and regions (hulls, carrying, regions)."""
+        observation = self.observe(gray, camera_matrix)
+        refit = self.refit(observation)
+        labels = self.apply(refit)
+        self.stages.seconds.update(refit.stages)
+        return labels
+
+    def observe(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> Observation:
+        """The frame path's part: track into ``gray``, compute the dense flow; returns what the refit needs.
+
+        Clears ``stages`` (a new frame)."""
+        self.stages.clear()
+        self._index += 1
+        with self.stages("tracks"):
+            self._points.update(gray)
+            self._frames.append((self._points.ids.copy(), self._points.points.copy()))
+            small = self._dense_size(gray.shape)
+            self._grays.append(cv2.resize(gray, small[::-1], interpolation=cv2.INTER_AREA)
+                               if small != gray.shape else gray)
+        flows = None
         if self.config.dense and len(self._grays) > self.config.dense_gap:
-            moving |= self._dense_mask(self._grays[0], self._grays[-1])
-        self.moving = moving
-        return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
+            with self.stages("flow"):
+                earlier, now = self._grays[0], self._grays[-1]
+                flows = (self._flow(now, earlier), self._flow(earlier, now))
+            self._backward.append((self._index, flows[0]))
+        pair = None
+        if len(self._frames) > self.config.track_motion.gap:
+            (ids1, x1), (ids2, x2) = self._frames[0], self._frames[-1]
+            pair = (ids1, x1, ids2, x2)
+        guessed = camera_matrix is None
+        K = guessed_camera_matrix(gray.shape) if guessed else camera_matrix
+        self._tracking_shape = gray.shape
+        return Observation(self._index, pair, self._points.ids.copy(), K, guessed, flows, self._grays[-1])
+
+    def refit(self, observation: Observation) -> Refit:
+        """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
+        test with sticky flags, and the dense residual mask; the Refit's ``stages`` times fit and dense_fit."""
+        stages = Stages()
+        with stages("fit"):
+            flagged = self._flagged(observation)
+        dense = None
+        if observation.flows is not None:
+            with stages("dense_fit"):
+                dense = self._dense_mask(*observation.flows, observation.gray)
+        return Refit(observation.index, flagged, dense, stages.seconds)
+
+    def apply(self, refit: Refit | None) -> np.ndarray:
+        """Moving regions of the current frame from ``refit`` (this frame's or an older one; None: nothing)."""
+        with self.stages("regions"):
+            small = self._grays[-1].shape
+            flagged = refit.flagged if refit is not None else np.zeros(0, dtype=np.int64)
+            here = np.isin(self._points.ids, flagged)
+            self.moving_track_points = self._points.points[here]
+            scale = small[1] / self._tracking_shape[1]
+            moving = hull_mask(self.moving_track_points * scale, small, self.config.link_fraction * small[1],
+                               self.config.min_group)
+            if refit is not None and refit.dense is not None:
+                moving |= self._carried(refit.dense, refit.index)
+            self.moving = moving
+            return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
+
+    def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
+        """``mask`` of frame ``index`` warped to the current frame along the backward flows since."""
+        for frame, backward in self._backward:
+            if frame <= index:
+                continue
+            grid = pixel_grid(*backward.shape[:2])
+            landing = grid + backward
+            mask = cv2.remap(mask.astype(np.uint8), landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
+                             borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        return mask
 
     def _dense_size(self, shape: tuple[int, int]) -> tuple[int, int]:
         scale = min(1.0, self.config.dense_width / shape[1])
         return max(32, round(shape[0] * scale)), max(32, round(shape[1] * scale))
 
-    def _flagged_now(self, K: np.ndarray) -> np.ndarray:
-        """Ids of the current frame's tracks that move (this window, or sticky from earlier windows)."""
-        self._fit_newest_pair(K)
+    def _flagged(self, observation: Observation) -> np.ndarray:
+        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows)."""
+        if observation.pair is not None:
+            self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([i for i, _, _ in self._pairs]))
@@ -143,11 +256,10 @@ class MotionFrontEnd:
             if parallax is not None:
                 signed[rows, m] = parallax
         flagged = ids[moving_tracks(residuals, self.config.track_motion, signed)]
-        return np.union1d(flagged, self._count_flags(flagged))
+        return np.union1d(flagged, self._count_flags(flagged, observation.alive))
 
-    def _count_flags(self, flagged: np.ndarray) -> np.ndarray:
+    def _count_flags(self, flagged: np.ndarray, alive: np.ndarray) -> np.ndarray:
         """Count one more window for each living flagged track; returns the ids flagged in enough windows."""
-        alive = self._points.ids
         keep = np.isin(self._flag_ids, alive)
         fresh = np.setdiff1d(flagged[np.isin(flagged, alive)], self._flag_ids)
         ids = np.concatenate([self._flag_ids[keep], fresh])
@@ -158,24 +270,15 @@ class MotionFrontEnd:
         self._flag_ids, self._flag_counts = ids, counts
         return ids[counts >= self.config.sticky_windows]
 
-    def _fit_newest_pair(self, K: np.ndarray) -> None:
-        if len(self._frames) <= self.config.track_motion.gap:
-            return
-        (ids1, x1), (ids2, x2) = self._frames[0], self._frames[-1]
+    def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, K: np.ndarray,
+                  guessed: bool) -> None:
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
-        evidence = pair_evidence(x1[i1], x2[i2], self.config.track_motion, K, self._guessed)
+        evidence = pair_evidence(x1[i1], x2[i2], self.config.track_motion, K, guessed)
         if evidence is not None:
             self._pairs.append((both, *evidence))
 
-    def _sparse_mask(self, shape: tuple[int, int], scale: float, K: np.ndarray) -> np.ndarray:
-        flagged = self._flagged_now(K)
-        here = np.isin(self._points.ids, flagged)
-        self.moving_track_points = self._points.points[here]
-        return hull_mask(self.moving_track_points * scale, shape, self.config.link_fraction * shape[1],
-                         self.config.min_group)
-
-    def _dense_mask(self, earlier: np.ndarray, gray: np.ndarray) -> np.ndarray:
-        evidence = epipolar_residual(self._flow(gray, earlier), self._flow(earlier, gray), self.config.dense_baseline)
+    def _dense_mask(self, backward: np.ndarray, forward: np.ndarray, gray: np.ndarray) -> np.ndarray:
+        evidence = epipolar_residual(backward, forward, self.config.dense_baseline)
         if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid

@@ -48,6 +48,9 @@ class Decision:
     labels: np.ndarray
     dynamic_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     status: Status = Status.OK
+    stages: dict[str, float] = field(default_factory=dict)  # seconds per stage of this frame, when measured
+    refit_age: int | None = None  # frames between this frame and the refit it applies (None: no refit)
+    refit_stages: dict[str, float] = field(default_factory=dict)  # that refit's stages, on its first frame only
 
 
 class Method(Protocol):
@@ -63,3 +66,6 @@ class Method(Protocol):
 
     def step(self, frame: FrameInput) -> Decision:
         """Decide one frame."""
+
+    def close(self) -> None:
+        """Release what the method holds beyond the stream (a refit worker)."""

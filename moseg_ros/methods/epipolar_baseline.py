@@ -33,6 +33,9 @@ class EpipolarBaseline:
         self._baseline = config.baseline()
         self.reset()
 
+    def close(self) -> None:
+        """Nothing to release: this method fits on the frame path."""
+
     def reset(self) -> None:
         """Forget the previous frame and every region."""
         self._previous: np.ndarray | None = None

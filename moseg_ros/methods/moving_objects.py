@@ -6,6 +6,12 @@ hulls, united with a dense epipolar residual mask at the working resolution; reg
 time. The cheirality part of the track test uses camera_info's K when it comes, a guessed one otherwise.
 Every region the front-end reports is flagged as moving. With upstream instances, they are the objects
 instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
+
+With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
+(moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
+done, whose moving tracks are drawn where they are now and whose dense mask is carried along the flow;
+``Decision.refit_age`` says how many frames old that refit is. "inline" refits every frame on the frame
+path (deterministic: the offline tools).
 """
 
 from __future__ import annotations
@@ -18,8 +24,9 @@ import numpy as np
 
 from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, Refit
 from moseg_ros.methods.base import Decision, FrameInput, Status
+from moseg_ros.refit import BackgroundRefit
 
 if TYPE_CHECKING:
     from moseg_ros.pipeline import PipelineConfig
@@ -51,24 +58,56 @@ class MovingObjects:
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
+        self._worker = BackgroundRefit(self._front_end.refit) if config.refit == "background" else None
         self.reset()
 
     def reset(self) -> None:
-        """Forget every track and region."""
-        self._front_end.reset()
+        """Forget every track and region (and, with a worker, the refit it runs or waits with)."""
+        if self._worker is None:
+            self._front_end.reset()
+        else:
+            self._worker.clear(self._front_end.reset)
         self._frames = 0
+        self._applied = -1
+
+    def close(self) -> None:
+        """Stop the refit worker, if any."""
+        if self._worker is not None:
+            self._worker.stop()
 
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
         tracking = self._tracking_frame(frame.full)
-        labels = self._front_end.update(tracking, scaled_camera_matrix(frame.camera_matrix, frame.full.shape,
-                                                                       tracking.shape))
+        observation = self._front_end.observe(
+            tracking, scaled_camera_matrix(frame.camera_matrix, frame.full.shape, tracking.shape))
+        refit = self._refit(observation)
+        labels = self._front_end.apply(refit)
         self._frames += 1
         if frame.instances is not None:
-            return self._decide_instances(frame.instances)
-        if self._frames == 1:
-            return Decision(labels, status=Status.WARMUP)
-        return Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
+            decision = self._decide_instances(frame.instances)
+        elif self._frames == 1 or refit is None:
+            decision = Decision(labels, status=Status.WARMUP)
+        else:
+            decision = Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
+        decision.stages = dict(self._front_end.stages.seconds)
+        if refit is not None:
+            decision.refit_age = observation.index - refit.index
+            if refit.index != self._applied:
+                decision.refit_stages = dict(refit.stages)
+                self._applied = refit.index
+            if self._worker is None:
+                decision.stages.update(refit.stages)
+        return decision
+
+    def _refit(self, observation: Observation) -> Refit | None:
+        """This frame's refit (inline), or the newest one the worker has done (background)."""
+        if self._worker is None:
+            return self._front_end.refit(observation)
+        error = self._worker.take_error()
+        if error is not None:
+            raise error
+        self._worker.submit(observation)
+        return self._worker.latest()
 
     def _decide_instances(self, instances: np.ndarray) -> Decision:
         if self._frames == 1:

@@ -39,6 +39,9 @@ class ObjectLevel:
         self._fallback = EpipolarBaseline(config)
         self.reset()
 
+    def close(self) -> None:
+        """Nothing to release: this method fits on the frame path."""
+
     def reset(self) -> None:
         """Empty the window and forget every decision."""
         self._points.reset()

@@ -81,6 +81,16 @@ def _rclpy_messages(bag: Path, topics: dict[str, str]) -> Iterator[tuple[str, in
         yield topic, log_time, deserialize_message(bytes(typestore.serialize_cdr(msg, msgtype)), classes[msgtype])
 
 
+def camera_topics(available: dict[str, str], image_topic: str | None = None) -> tuple[str, dict[str, str]]:
+    """(the image topic, {topic: type} of it and of its camera_info beside it when the bag has one)."""
+    topic = pick_image_topic(available, image_topic)
+    topics = {topic: available[topic]}
+    info_topic = topic.rsplit("/", 1)[0] + "/camera_info"
+    if available.get(info_topic) == CAMERA_INFO_TYPE:
+        topics[info_topic] = CAMERA_INFO_TYPE
+    return topic, topics
+
+
 def get_message(msgtype: str) -> type:
     """The rclpy message class of a type name like "sensor_msgs/msg/Image" (rosidl_runtime_py is not on PyPI)."""
     package, kind, name = msgtype.split("/")
@@ -174,11 +184,7 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
     if rate <= 0:
         raise ValueError(f"rate must be > 0, got {rate}")
     available = list_topics(bag)
-    topic = pick_image_topic(available, image_topic)
-    topics = {topic: available[topic]}
-    info_topic = topic.rsplit("/", 1)[0] + "/camera_info"
-    if available.get(info_topic) == CAMERA_INFO_TYPE:
-        topics[info_topic] = CAMERA_INFO_TYPE
+    topic, topics = camera_topics(available, image_topic)
     if instances_topic is not None:
         if instances_topic not in available:
             raise ValueError(f"{bag} has no topic {instances_topic}; topics: {', '.join(sorted(available))}")

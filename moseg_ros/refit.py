@@ -1,0 +1,112 @@
+"""The refit stage off the frame path: motion models fitted on a worker thread of their own.
+
+The frame path (decode, track, flow, render) submits what the fit needs from each frame and goes on with
+the newest fit that is done; it never waits for one. The worker fits the newest submission only: a newer
+one replaces a waiting one (the slot holds one, so memory stays bounded), which is what a stream wants when
+fitting is slower than the camera. NumPy and OpenCV release the GIL, so on two cores the fit runs beside
+the frame path.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
+Observation = TypeVar("Observation")
+Result = TypeVar("Result")
+
+
+class BackgroundRefit(Generic[Observation, Result]):
+    """Runs ``fit`` on the newest submitted observation in a daemon thread; results come back newest first.
+
+    Attributes:
+        fitted: fits done since the start.
+        replaced: submissions replaced by a newer one before the worker took them.
+        seconds: duration of the last fit.
+        error: the exception of a fit that raised (the worker keeps running; the caller decides).
+    """
+
+    def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit") -> None:
+        self._fit = fit
+        self._cond = threading.Condition()
+        self._fitting = threading.Lock()  # held for each fit, so clear() never interleaves with one
+        self._pending: Observation | None = None
+        self._result: Result | None = None
+        self._busy = False
+        self._stopped = False
+        self._epoch = 0  # counts clear(): a fit taken before one is dropped
+        self.fitted = 0
+        self.replaced = 0
+        self.seconds = 0.0
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, observation: Observation) -> None:
+        """Queue ``observation`` for the next fit, replacing one that still waits."""
+        with self._cond:
+            if self._pending is not None:
+                self.replaced += 1
+            self._pending = observation
+            self._cond.notify_all()
+
+    def latest(self) -> Result | None:
+        """The newest finished fit (None before the first)."""
+        with self._cond:
+            return self._result
+
+    def take_error(self) -> BaseException | None:
+        """The error of a fit that raised since the last call, once."""
+        with self._cond:
+            error, self.error = self.error, None
+            return error
+
+    def clear(self, reset: Callable[[], None] = lambda: None) -> None:
+        """Drop the waiting observation and the last result, and run ``reset`` while no fit runs."""
+        with self._fitting, self._cond:
+            self._epoch += 1
+            self._pending = None
+            self._result = None
+            self.error = None
+            reset()
+
+    def wait_idle(self, timeout: float | None = None) -> bool:
+        """Block until nothing waits and no fit runs; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._pending is None and not self._busy, timeout)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """End the worker after the fit it runs, if any."""
+        with self._cond:
+            self._stopped = True
+            self._cond.notify_all()
+        self._thread.join(timeout)
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._pending is not None or self._stopped)
+                if self._stopped:
+                    return
+                observation, self._pending = self._pending, None
+                self._busy, epoch = True, self._epoch
+            with self._fitting:
+                fresh = epoch == self._epoch
+                start = time.perf_counter()
+                try:
+                    result, error = (self._fit(observation) if fresh else None), None
+                except Exception as caught:  # handed to the frame path, which turns it into a frame status
+                    result, error = None, caught
+                seconds = time.perf_counter() - start
+                with self._cond:  # still under _fitting: a clear() cannot slip in between fit and hand-over
+                    self._busy = False
+                    if fresh:
+                        self.seconds = seconds
+                        if error is None:
+                            self._result = result
+                            self.fitted += 1
+                        else:
+                            self.error = error
+                    self._cond.notify_all()

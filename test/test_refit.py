@@ -1,0 +1,155 @@
+"""The refit off the frame path: moseg_ros/refit.py's worker, and the pipeline with a background refit."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from conftest import textured_frames
+from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.methods.base import Status
+from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.refit import BackgroundRefit
+
+
+class TestBackgroundRefit:
+    def test_newest_submission_wins_and_results_come_back(self) -> None:
+        gate = threading.Event()
+        seen: list[int] = []
+
+        def fit(value: int) -> int:
+            gate.wait(5)
+            seen.append(value)
+            return value * 10
+
+        worker = BackgroundRefit(fit)
+        try:
+            for value in range(5):
+                worker.submit(value)
+                time.sleep(0.01)
+            gate.set()
+            assert worker.wait_idle(5)
+            assert worker.latest() == 40 and seen[-1] == 4
+            assert worker.replaced >= 1 and len(seen) < 5 and worker.fitted == len(seen)
+        finally:
+            worker.stop()
+
+    def test_clear_drops_a_fit_started_before_it(self) -> None:
+        started, release = threading.Event(), threading.Event()
+        state = {"resets": 0}
+
+        def fit(value: int) -> int:
+            started.set()
+            release.wait(5)
+            return value
+
+        worker = BackgroundRefit(fit)
+        try:
+            worker.submit(1)
+            assert started.wait(5)
+            clearing = threading.Thread(target=worker.clear, args=(lambda: state.update(resets=1),))
+            clearing.start()
+            time.sleep(0.05)
+            assert state["resets"] == 0  # clear waits for the running fit
+            release.set()
+            clearing.join(5)
+            assert state["resets"] == 1 and worker.latest() is None  # its result was dropped
+            worker.submit(2)
+            assert worker.wait_idle(5) and worker.latest() == 2
+        finally:
+            worker.stop()
+
+    def test_an_error_is_handed_over_once(self) -> None:
+        def fit(value: int) -> int:
+            if value < 0:
+                raise ArithmeticError("negative")
+            return value
+
+        worker = BackgroundRefit(fit)
+        try:
+            worker.submit(-1)
+            assert worker.wait_idle(5)
+            error = worker.take_error()
+            assert isinstance(error, ArithmeticError) and worker.take_error() is None
+            worker.submit(3)
+            assert worker.wait_idle(5) and worker.latest() == 3
+        finally:
+            worker.stop()
+
+
+def _slow_refit(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
+    original = MotionFrontEnd.refit
+
+    def slow(self, observation):
+        time.sleep(seconds)
+        return original(self, observation)
+
+    monkeypatch.setattr(MotionFrontEnd, "refit", slow)
+
+
+class TestPipelineWithBackgroundRefit:
+    def test_a_slow_refit_never_holds_a_frame_back(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Refits take 0.3 s; 16 frames still get their own masks at the frame path's pace, from older refits."""
+        _slow_refit(monkeypatch, 0.3)
+        frames = textured_frames(16)
+        pipeline = Pipeline(PipelineConfig(), live=True)
+        try:
+            start = time.perf_counter()
+            results = [pipeline.process(frame, 1_000 + i * 100_000_000) for i, frame in enumerate(frames)]
+            elapsed = time.perf_counter() - start
+        finally:
+            pipeline.close()
+        assert [r.stamp_ns for r in results] == [1_000 + i * 100_000_000 for i in range(16)]
+        assert all(r.masks.dynamic.shape == frames[0].shape[:2] for r in results)
+        assert elapsed < 0.5 * 16 * 0.3  # waiting for every refit would take 4.8 s
+        ages = [r.refit_age for r in results if r.refit_age is not None]
+        assert ages and max(ages) >= 2  # the worker fell behind, and the frames went on with older refits
+        assert results[0].kind is Status.WARMUP
+
+    def test_background_finds_the_mover_as_inline_does(self) -> None:
+        frames = textured_frames(20)
+        inline = Pipeline(PipelineConfig(refit="inline"))
+        background = Pipeline(PipelineConfig(refit="background"))
+        try:
+            masks = {}
+            for name, pipeline in (("inline", inline), ("background", background)):
+                results = []
+                for i, frame in enumerate(frames):
+                    results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
+                    time.sleep(0.05)  # a 20 Hz camera: the worker keeps up
+                masks[name] = [r.masks.dynamic > 0 for r in results]
+                assert {r.refit_age for r in results[5:]} <= ({0} if name == "inline" else {0, 1, 2})
+        finally:
+            background.close()
+        block = (slice(188 // 6 + 3 * 19, 188 // 6 + 3 * 19 + 62), slice(621 // 4, 621 // 4 + 77))
+        for name in masks:
+            assert masks[name][-1][block].mean() > 0.5, name
+        overlap = [np.logical_and(a, b).sum() / max(np.logical_or(a, b).sum(), 1)
+                   for a, b in zip(masks["inline"][8:], masks["background"][8:])]
+        assert np.mean(overlap) > 0.7
+
+    def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        original = MotionFrontEnd.refit
+        calls = {"n": 0}
+
+        def flaky(self, observation):
+            calls["n"] += 1
+            if calls["n"] == 3:
+                raise FloatingPointError("degenerate pair")
+            return original(self, observation)
+
+        monkeypatch.setattr(MotionFrontEnd, "refit", flaky)
+        pipeline = Pipeline(PipelineConfig(refit="background"))
+        try:
+            kinds = []
+            for i, frame in enumerate(textured_frames(12)):
+                kinds.append(pipeline.process(frame, 1_000 + i * 100_000_000))
+                pipeline.method._worker.wait_idle(5)
+        finally:
+            pipeline.close()
+        failed = [r for r in kinds if r.kind is Status.FAILED]
+        assert len(failed) == 1 and "FloatingPointError: degenerate pair" in failed[0].status
+        assert kinds[-1].kind is Status.OK and kinds[-1].masks.dynamic.any()
