@@ -19,7 +19,8 @@ setup(
     python_requires=">=3.10",
     install_requires=["numpy>=1.24", "scipy>=1.10", "opencv-python-headless>=4.8", "rosbags>=0.10", "mcap>=1.1",
                       "threadpoolctl>=3.1", "pillow>=9", "PyYAML>=6"],
-    extras_require={"fleet": ["ray>=2.40"]},  # `moseg process --ray`, `moseg bench fleet`
+    # `moseg process --ray`, `moseg bench fleet`; `moseg eval map`
+    extras_require={"fleet": ["ray>=2.40"], "map": ["pycolmap>=4.1", "evo>=1.30"]},
     zip_safe=True,
     maintainer="moseg_ros developers",
     maintainer_email="moseg-ros@example.org",

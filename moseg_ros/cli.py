@@ -31,6 +31,7 @@ GROUPS: dict[str, tuple[str, dict[str, tuple[str, str]]]] = {
                             "the node's dynamic masks on real KT3DMoSeg frames, scored at labelled points"),
         "davis": ("moseg_ros.eval.davis",
                   "the node's dynamic masks on DAVIS-2016 clips: J, pixel precision and recall"),
+        "map": ("moseg_ros.eval.map", "COLMAP maps and trajectories with no mask, our masks and ground-truth masks"),
     }),
     "bench": ("speed benchmarks that print numbers", {
         "pipeline": ("moseg_ros.bench.pipeline", "milliseconds per frame of the pipeline"),

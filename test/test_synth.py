@@ -265,7 +265,20 @@ def test_cli_writes_a_bag_and_reports_frames_per_second(tmp_path: Path, capsys: 
     assert (tmp_path / "out" / "metadata.yaml").is_file()
     assert cli.run(args) == 2  # the output exists: refused, not overwritten
     assert "already exists" in capsys.readouterr().err
-    assert set(PRESETS) >= {"default", "ahead", "oncoming", "crossing", "pedestrian", "parallax", "parked"}
+    assert set(PRESETS) >= {"default", "ahead", "oncoming", "crossing", "pedestrian", "parallax", "parked", "map"}
+
+
+def test_map_scene_is_the_busy_street_at_half_speed(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    street, slow = (build_scene(name, seed=0, n_frames=40, **SMALL) for name in ("default", "map"))
+    movers = {street.object_names()[i] for i in street.dynamic_ids()}
+    assert movers == {slow.object_names()[i] for i in slow.dynamic_ids()} >= {"car_ahead", "car_crossing"}
+    step = np.linalg.norm(np.diff([T[:3, 3] for T in slow.poses], axis=0), axis=1)
+    assert 0.45 < step.mean() < 0.55 and 0.9 < np.linalg.norm(np.diff([T[:3, 3] for T in street.poses],
+                                                                        axis=0), axis=1).mean() < 1.1
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    args = parser.parse_args(["-o", str(tmp_path / "m"), "--scenario", "map", "--width", "160", "--height", "64"])
+    assert cli.run(args) == 0 and "120 frames" in capsys.readouterr().out
 
 
 def _footprints_overlap(a: np.ndarray, b: np.ndarray) -> bool:

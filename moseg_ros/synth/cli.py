@@ -12,7 +12,7 @@ import sys
 import time
 from collections.abc import Iterable, Iterator
 
-from moseg_ros.synth.scenarios import PRESETS, build_scene
+from moseg_ros.synth.scenarios import DEFAULT_FRAMES, PRESETS, build_scene
 from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH, SynthFrame, render_frames, write_frames
 
 
@@ -22,7 +22,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenario", default="default", choices=list(PRESETS),
                         help="scene preset (default: %(default)s)")
     parser.add_argument("--seed", type=int, default=0, help="random seed of textures and offsets (default: 0)")
-    parser.add_argument("--frames", type=int, default=40, help="number of frames at 10 Hz (default: 40)")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="number of frames at 10 Hz (default: 40; the map scenario 120)")
     parser.add_argument("--width", type=int, default=KITTI_WIDTH, help=f"image width (default: {KITTI_WIDTH})")
     parser.add_argument("--height", type=int, default=KITTI_HEIGHT, help=f"image height (default: {KITTI_HEIGHT})")
     parser.add_argument("--start-ns", type=int, default=None,
@@ -51,6 +52,8 @@ class _Timed:
 
 def run(args: argparse.Namespace) -> int:
     """Render the scene, write the bag, print per-topic counts, the objects and the rendering rate."""
+    if args.frames is None:
+        args.frames = DEFAULT_FRAMES.get(args.scenario, 40)
     try:
         if args.frames < 2:
             raise ValueError(f"--frames must be at least 2, got {args.frames}")

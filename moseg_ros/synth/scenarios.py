@@ -122,16 +122,16 @@ class _Builder:
 
 
 def _builder(name: str, seed: int, n_frames: int, width: int, height: int,
-             side_street_ahead: float | None = None) -> _Builder:
+             side_street_ahead: float | None = None, camera_speed: float = 1.0) -> _Builder:
     """Street and camera of every preset.
 
     With ``side_street_ahead``, both facades open (over at least 14 m) for a side street that many metres
-    past the camera's last position.
+    past the camera's last position. The camera drives about ``camera_speed`` metres per frame.
     """
     if n_frames < 2:
         raise ValueError(f"a scenario needs at least 2 frames, got {n_frames}")
     rng, paint_rng = np.random.default_rng([seed, 0]), np.random.default_rng([seed, 1])
-    speed = 1.0 + float(rng.uniform(-0.05, 0.05))
+    speed = camera_speed * (1.0 + float(rng.uniform(-0.05, 0.05)))
     cam_height = 1.5 + float(rng.uniform(-0.08, 0.08))
     amplitude = np.deg2rad(2.5 + float(rng.uniform(-0.5, 0.5)))
     period = float(rng.uniform(40.0, 60.0))
@@ -273,8 +273,25 @@ def parked(seed: int, n_frames: int, width: int = KITTI_WIDTH, height: int = KIT
 
 def default(seed: int, n_frames: int, width: int = KITTI_WIDTH, height: int = KITTI_HEIGHT) -> SynthScene:
     """The demo: a car ahead, an oncoming car, a crossing car, a pedestrian, two parked cars, street furniture."""
+    return _busy_street("default", seed, n_frames, width, height, camera_speed=1.0)
+
+
+def map_scene(seed: int, n_frames: int, width: int = KITTI_WIDTH, height: int = KITTI_HEIGHT) -> SynthScene:
+    """For `moseg eval map`: the demo's movers, parked cars and street furniture, seen by a camera driving at
+    half the demo's speed (0.5 m a frame), so that consecutive frames overlap enough for SfM; 120 frames by
+    default (MAP_FRAMES). The movers carry textured bodies: unmasked, SIFT puts landmarks on them."""
+    return _busy_street("map", seed, n_frames, width, height, camera_speed=0.5)
+
+
+MAP_FRAMES = 120
+# Frames of a preset when none are asked for (``moseg synth``).
+DEFAULT_FRAMES: dict[str, int] = {"map": MAP_FRAMES}
+
+
+def _busy_street(name: str, seed: int, n_frames: int, width: int, height: int, camera_speed: float) -> SynthScene:
     # The side street lies beyond where the oncoming car starts (see _car_oncoming), which grows with n.
-    b = _builder("default", seed, n_frames, width, height, side_street_ahead=max(26.0, 0.4 * n_frames + 12.0))
+    b = _builder(name, seed, n_frames, width, height,
+                 side_street_ahead=max(26.0, 0.4 * camera_speed * n_frames + 12.0), camera_speed=camera_speed)
     _car_ahead(b)
     _car_oncoming(b)
     _car_crossing(b)
@@ -297,6 +314,7 @@ PRESETS: dict[str, Callable[[int, int, int, int], SynthScene]] = {
     "pedestrian": pedestrian,
     "parallax": parallax,
     "parked": parked,
+    "map": map_scene,
 }
 
 

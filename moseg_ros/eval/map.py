@@ -1,0 +1,332 @@
+"""`moseg eval map BAG`: what our masks do to a real map builder (COLMAP through pycolmap).
+
+COLMAP runs three ways on the bag's frames: without masks (``none``), with our dynamic masks (``ours``: read
+from ``--masks OUTPUT_BAG``, or made by the default method in-process), and with the ground-truth masks
+(``gt``, when the bag has ``/gt/dynamic_mask``). Each run: SIFT features with COLMAP's own per-image mask
+input (a feature is never extracted on a masked pixel), sequential matching, the global mapper (GLOMAP, in
+COLMAP 4) or the incremental one. Per mode it reports images registered, 3D points, mean reprojection error,
+the features the mask took away, the landmarks observed on a ground-truth moving pixel (synthetic bags) and,
+against ground-truth poses (``/gt/pose`` of the bag, e.g. a synthetic bag or one made by ``moseg kitti2bag``
+with poses), ATE after a similarity alignment and RPE between consecutive registered frames, both from evo.
+A PNG beside the JSON shows the trajectories of the three modes over the ground truth, seen from above.
+
+Why COLMAP: it is the reference SfM engine, takes masks natively and runs on a CPU from a pip wheel; a
+visual SLAM front-end fed our masks faces the same question (are the landmarks static?).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
+from moseg_ros.io.bags import iter_messages, list_topics, read_images, stamp_to_ns
+from moseg_ros.params import add_settings_arguments, pipeline_config
+
+MODES = ("none", "ours", "gt")
+OUR_MASKS = "/segmenter/dynamic_mask"
+GT_POSE_TOPIC = "/gt/pose"
+MAPPERS = ("global", "incremental")
+
+
+@dataclasses.dataclass(frozen=True)
+class Frames:
+    """The frames exported for COLMAP: image names in order, their stamps and the camera matrix (or None)."""
+
+    folder: Path
+    names: list[str]
+    stamps: list[int]
+    camera_matrix: np.ndarray | None
+    shape: tuple[int, int]
+
+
+def export_frames(bag: Path, folder: Path, every: int = 1) -> Frames:
+    """Write every ``every``-th image of the bag as PNG (``frame_000000.png`` ...) into ``folder``."""
+    folder.mkdir(parents=True, exist_ok=True)
+    names, stamps, shape = [], [], (0, 0)
+    for i, image in enumerate(read_images(bag)):
+        if i % every:
+            continue
+        rgb = image.rgb()
+        shape = rgb.shape[:2]
+        name = f"frame_{len(names):06d}.png"
+        cv2.imwrite(str(folder / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+        names.append(name)
+        stamps.append(image.stamp_ns)
+    if len(names) < 3:
+        raise ValueError(f"{bag}: {len(names)} frames taken (every {every}); a map needs at least 3")
+    return Frames(folder, names, stamps, _camera_matrix(bag), shape)
+
+
+def _camera_matrix(bag: Path) -> np.ndarray | None:
+    infos = [topic for topic, msgtype in list_topics(bag).items() if msgtype.endswith("CameraInfo")]
+    for _, _, msg in iter_messages(bag, infos[:1]) if infos else ():
+        return np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    return None
+
+
+def write_colmap_masks(frames: Frames, dynamic: dict[int, np.ndarray], folder: Path) -> int:
+    """COLMAP mask images (``<image name>.png``: 0 = no features here, 255 = keep) from dynamic masks by stamp.
+
+    A frame without a mask keeps everything. Returns how many frames had a mask.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    found = 0
+    for name, stamp in zip(frames.names, frames.stamps):
+        moving = dynamic.get(stamp)
+        keep = np.full(frames.shape, 255, np.uint8)
+        if moving is not None:
+            keep[cv2.resize(moving.astype(np.uint8), frames.shape[::-1], interpolation=cv2.INTER_NEAREST) > 0] = 0
+            found += 1
+        cv2.imwrite(str(folder / f"{name}.png"), keep)
+    return found
+
+
+def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "global") -> Any | None:
+    """Features (masked by ``masks`` when given), sequential matching and a mapper; the largest reconstruction
+    (pycolmap.Reconstruction) or None when nothing was reconstructed. The database stays in ``work``."""
+    import pycolmap
+
+    database = extract_features(frames, work, masks)
+    pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
+    output = work / "sparse"
+    output.mkdir(exist_ok=True)
+    if mapper == "global":
+        reconstructions = pycolmap.global_mapping(database, frames.folder, output)
+    else:
+        reconstructions = pycolmap.incremental_mapping(database, frames.folder, output)
+    if not reconstructions:
+        return None
+    return max(reconstructions.values(), key=lambda r: r.num_reg_images())
+
+
+def extract_features(frames: Frames, work: Path, masks: Path | None) -> Path:
+    """SIFT features of the frames into ``work/database.db`` (one pinhole camera from K when known), none on
+    the pixels ``masks`` (COLMAP mask images) set to 0; returns the database path."""
+    import pycolmap
+
+    work.mkdir(parents=True, exist_ok=True)
+    database = work / "database.db"
+    reader = pycolmap.ImageReaderOptions()
+    if frames.camera_matrix is not None:
+        K = frames.camera_matrix
+        reader.camera_model = "PINHOLE"
+        reader.camera_params = f"{K[0, 0]},{K[1, 1]},{K[0, 2]},{K[1, 2]}"
+    if masks is not None:
+        reader.mask_path = str(masks)
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = 4096
+    pycolmap.extract_features(database, frames.folder, image_names=frames.names,
+                              camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    return database
+
+
+def keypoints_by_image(database: Path) -> dict[str, np.ndarray]:
+    """(N, 2) keypoint positions (x, y, pixel centres at +0.5) per image name, from a COLMAP database."""
+    import pycolmap
+
+    db = pycolmap.Database.open(str(database))
+    try:
+        return {image.name: np.asarray(db.read_keypoints(image.image_id))[:, :2] for image in db.read_all_images()}
+    finally:
+        db.close()
+
+
+def dynamic_landmark_pct(reconstruction: Any, frames: Frames, moving: dict[int, np.ndarray]) -> float:
+    """Percent of 3D points with at least one observation on a ground-truth moving pixel."""
+    stamp_of = dict(zip(frames.names, frames.stamps))
+    on_mover: set[int] = set()
+    for image in reconstruction.images.values():
+        mask = moving.get(stamp_of.get(image.name, -1))
+        if mask is None:
+            continue
+        for point in image.get_observation_points2D():
+            x, y = np.clip(np.floor(point.xy).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
+            if mask[y, x]:
+                on_mover.add(point.point3D_id)
+    total = reconstruction.num_points3D()
+    return 100.0 * len(on_mover) / total if total else 0.0
+
+
+def camera_centres(reconstruction: Any, frames: Frames) -> dict[int, np.ndarray]:
+    """4x4 camera-to-world of every registered image, by stamp."""
+    stamp_of = dict(zip(frames.names, frames.stamps))
+    poses = {}
+    for image in reconstruction.images.values():
+        if not image.has_pose:
+            continue
+        T = np.eye(4)
+        T[:3, :4] = image.cam_from_world().inverse().matrix()
+        poses[stamp_of[image.name]] = T
+    return poses
+
+
+def trajectory_errors(estimated: dict[int, np.ndarray], reference: dict[int, np.ndarray]) -> dict[str, Any]:
+    """ATE (RMSE of positions after a similarity alignment) and RPE (RMSE of the translation between
+    consecutive frames, after the same alignment) with evo, over the stamps both have; also the aligned
+    positions for plotting. None values when fewer than 3 stamps are shared."""
+    from evo.core import metrics
+    from evo.core.trajectory import PoseTrajectory3D
+
+    stamps = sorted(set(estimated) & set(reference))
+    if len(stamps) < 3:
+        return {"ate": None, "rpe": None, "aligned": None}
+    seconds = np.array(stamps, dtype=np.float64) / 1e9
+    est = PoseTrajectory3D(poses_se3=[estimated[s] for s in stamps], timestamps=seconds)
+    ref = PoseTrajectory3D(poses_se3=[reference[s] for s in stamps], timestamps=seconds)
+    est.align(ref, correct_scale=True)
+    ape = metrics.APE(metrics.PoseRelation.translation_part)
+    ape.process_data((ref, est))
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames)
+    rpe.process_data((ref, est))
+    return {"ate": float(ape.get_statistic(metrics.StatisticsType.rmse)),
+            "rpe": float(rpe.get_statistic(metrics.StatisticsType.rmse)), "aligned": est.positions_xyz}
+
+
+def _poses(bag: Path) -> dict[int, np.ndarray]:
+    from scipy.spatial.transform import Rotation
+
+    if GT_POSE_TOPIC not in list_topics(bag):
+        return {}
+    poses = {}
+    for _, _, msg in iter_messages(bag, [GT_POSE_TOPIC]):
+        T = np.eye(4)
+        q = msg.pose.orientation
+        T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+        T[:3, 3] = [msg.pose.position.x, msg.pose.position.y, msg.pose.position.z]
+        poses[stamp_to_ns(msg.header.stamp)] = T
+    return poses
+
+
+def mode_metrics(reconstruction: Any | None, frames: Frames, keypoints: dict[str, np.ndarray],
+                 unmasked: dict[str, np.ndarray], moving: dict[int, np.ndarray],
+                 reference: dict[int, np.ndarray]) -> dict[str, Any]:
+    """One mode's numbers (see the module docstring); ``unmasked`` are the keypoints of the run without masks."""
+    total = sum(len(v) for v in unmasked.values())
+    kept = sum(len(v) for v in keypoints.values())
+    row: dict[str, Any] = {"images": len(frames.names), "images_registered": 0, "points3d": 0,
+                           "reprojection_error_px": None, "features": kept,
+                           "features_lost_pct": 100.0 * (total - kept) / total if total else 0.0,
+                           "dynamic_landmark_pct": None, "ate": None, "rpe": None}
+    if reconstruction is None:
+        return row
+    row.update(images_registered=reconstruction.num_reg_images(), points3d=reconstruction.num_points3D(),
+               reprojection_error_px=float(reconstruction.compute_mean_reprojection_error()))
+    if moving:
+        row["dynamic_landmark_pct"] = dynamic_landmark_pct(reconstruction, frames, moving)
+    if reference:
+        errors = trajectory_errors(camera_centres(reconstruction, frames), reference)
+        row.update(ate=errors["ate"], rpe=errors["rpe"])
+        row["_aligned"] = errors["aligned"]
+    return row
+
+
+def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> dict[int, np.ndarray]:
+    if masks_bag is None:
+        from moseg_ros.tools.process import process_bag
+
+        masks_bag = work / "our_masks"
+        process_bag(bag, masks_bag, config=config)
+    return masks_by_stamp(masks_bag, OUR_MASKS)
+
+
+def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "global", every: int = 1,
+                 config: Any = None, work: Path | None = None, progress: bool = True) -> dict[str, Any]:
+    """Run COLMAP per mode on ``bag`` and return {mode: metrics} (modes without masks are left out)."""
+    from moseg_ros.pipeline import PipelineConfig
+
+    import pycolmap
+
+    if mapper not in MAPPERS:
+        raise ValueError(f"unknown mapper {mapper!r}; use one of {MAPPERS}")
+    if progress:  # COLMAP's own log (a line per image and step) would bury the progress bar
+        pycolmap.logging.minloglevel = int(pycolmap.logging.Level.WARNING)
+    bag = Path(bag)
+    with tempfile.TemporaryDirectory(prefix="moseg-map-") as tmp:
+        work = Path(work or tmp)
+        frames = export_frames(bag, work / "images", every)
+        truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
+        reference = _poses(bag)
+        sources = {"none": None, "ours": _our_masks(bag, masks_bag, config or PipelineConfig(), work)}
+        if truth:
+            sources["gt"] = truth
+        results, unmasked = {}, {}
+        for step, (mode, dynamic) in enumerate(sources.items(), start=1):
+            if progress:
+                print(f"\r[{'#' * step}{'.' * (len(sources) - step)}] COLMAP {mode} ({step}/{len(sources)})",
+                      end="", file=sys.stderr, flush=True)
+            masks = None
+            if dynamic is not None:
+                masks = work / f"masks_{mode}"
+                write_colmap_masks(frames, dynamic, masks)
+            reconstruction = run_colmap(frames, work / mode, masks, mapper)
+            keypoints = keypoints_by_image(work / mode / "database.db")
+            unmasked = unmasked or keypoints
+            results[mode] = mode_metrics(reconstruction, frames, keypoints, unmasked, truth, reference)
+        if progress:
+            print(file=sys.stderr)
+    return results
+
+
+def plot_trajectories(results: dict[str, Any], reference: np.ndarray | None, path: Path) -> None:
+    """Top view (x, z) of each mode's aligned camera positions over the ground truth, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(6, 6))
+    if reference is not None:
+        axes.plot(reference[:, 0], reference[:, 2], "k-", linewidth=2, label="ground truth")
+    for mode, row in results.items():
+        aligned = row.get("_aligned")
+        if aligned is not None:
+            axes.plot(aligned[:, 0], aligned[:, 2], ".-", markersize=3, label=f"{mode} (ATE {row['ate']:.3f})")
+    axes.set_xlabel("x")
+    axes.set_ylabel("z")
+    axes.axis("equal")
+    axes.legend()
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of `moseg eval map`."""
+    parser.add_argument("bag", type=Path, help="input bag with the camera images (and /gt/pose, /gt/dynamic_mask)")
+    parser.add_argument("--masks", type=Path, metavar="OUTPUT_BAG",
+                        help="our masks: an output bag of `moseg process`/`replay` (default: run the method now)")
+    parser.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP's mapper (default: global)")
+    parser.add_argument("--every", type=int, default=1, help="take every N-th frame (default 1)")
+    parser.add_argument("--json", type=Path, metavar="PATH", help="write the results here (and the plot beside)")
+    add_settings_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the results per mode; exit 2 when the bag cannot be used."""
+    if args.every < 1:
+        print(f"moseg eval map: error: --every must be >= 1, got {args.every}", file=sys.stderr)
+        return 2
+    try:
+        results = evaluate_map(args.bag, masks_bag=args.masks, mapper=args.mapper, every=args.every,
+                               config=pipeline_config(args))
+    except (FileNotFoundError, ValueError) as error:
+        print(f"moseg eval map: error: {error}", file=sys.stderr)
+        return 2
+    printable = {mode: {k: v for k, v in row.items() if not k.startswith("_")} for mode, row in results.items()}
+    print(json.dumps(printable, indent=2))
+    if args.json:
+        args.json.write_text(json.dumps(printable, indent=2) + "\n")
+        reference = _poses(args.bag)
+        positions = np.array([reference[s][:3, 3] for s in sorted(reference)]) if reference else None
+        plot_trajectories(results, positions, args.json.with_suffix(".png"))
+    return 0

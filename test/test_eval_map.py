@@ -1,0 +1,123 @@
+"""`moseg eval map`: COLMAP (pycolmap) with and without masks, and the trajectory errors it reports."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from moseg_ros.cli import main as moseg
+from moseg_ros.eval.map import (
+    export_frames,
+    extract_features,
+    keypoints_by_image,
+    trajectory_errors,
+    write_colmap_masks,
+)
+from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
+
+pycolmap = pytest.importorskip("pycolmap", reason="pycolmap is not installed (requirements.txt pins it)")
+
+
+def _trajectory(n: int = 20) -> dict[int, np.ndarray]:
+    poses = {}
+    for i in range(n):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("y", 0.05 * i).as_matrix()
+        T[:3, 3] = [0.3 * np.sin(0.2 * i), 0.0, 1.0 * i]
+        poses[1_000 + i * 100_000_000] = T
+    return poses
+
+
+class TestTrajectoryErrors:
+    def test_a_trajectory_against_itself_is_zero(self) -> None:
+        poses = _trajectory()
+        errors = trajectory_errors(poses, poses)
+        assert errors["ate"] == pytest.approx(0.0, abs=1e-9) and errors["rpe"] == pytest.approx(0.0, abs=1e-9)
+
+    def test_a_scaled_rotated_shifted_copy_is_zero_after_alignment(self) -> None:
+        poses = _trajectory()
+        S = np.eye(4)
+        S[:3, :3] = 2.5 * Rotation.from_euler("xyz", [0.3, -1.1, 0.7]).as_matrix()
+        S[:3, 3] = [4.0, -2.0, 7.0]
+        moved = {}
+        for stamp, T in poses.items():
+            copy = np.eye(4)
+            copy[:3, :3] = S[:3, :3] / 2.5 @ T[:3, :3]
+            copy[:3, 3] = S[:3, :3] @ T[:3, 3] + S[:3, 3]
+            moved[stamp] = copy
+        errors = trajectory_errors(moved, poses)
+        assert errors["ate"] == pytest.approx(0.0, abs=1e-6) and errors["rpe"] == pytest.approx(0.0, abs=1e-6)
+
+    def test_noise_shows_and_too_few_frames_give_none(self) -> None:
+        poses = _trajectory()
+        rng = np.random.default_rng(0)
+        noisy = {s: T.copy() for s, T in poses.items()}
+        for T in noisy.values():
+            T[:3, 3] += rng.normal(0, 0.1, 3)
+        assert 0.05 < trajectory_errors(noisy, poses)["ate"] < 0.2
+        two = dict(list(poses.items())[:2])
+        assert trajectory_errors(two, two)["ate"] is None
+
+
+@pytest.fixture(scope="module")
+def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The synthetic `map` street, 12 frames at 621x188 (ground-truth masks and poses included)."""
+    path = tmp_path_factory.mktemp("map") / "street"
+    assert moseg(["synth", "-o", str(path), "--scenario", "map", "--frames", "12", "--width", "621",
+                  "--height", "188"]) == 0
+    return path
+
+
+def test_masks_reach_colmap_exactly(street: Path, tmp_path: Path) -> None:
+    """COLMAP extracts no feature on a masked pixel, and the mask takes features away."""
+    frames = export_frames(street, tmp_path / "images")
+    truth = masks_by_stamp(street, GT_DYNAMIC_TOPIC)
+    assert write_colmap_masks(frames, truth, tmp_path / "masks") == len(frames.names) == 12
+    masked = keypoints_by_image(extract_features(frames, tmp_path / "masked", tmp_path / "masks"))
+    plain = keypoints_by_image(extract_features(frames, tmp_path / "plain", None))
+    on_movers = 0
+    for name, stamp in zip(frames.names, frames.stamps):
+        moving = truth[stamp]
+        for keypoints, expect_none in ((masked[name], True), (plain[name], False)):
+            x, y = np.floor(keypoints).astype(int).T
+            hits = int(moving[y, x].sum())
+            if expect_none:
+                assert hits == 0, name
+            else:
+                on_movers += hits
+    assert on_movers > 50  # unmasked, SIFT does find the movers' texture
+    assert sum(map(len, masked.values())) < sum(map(len, plain.values()))
+
+
+def test_eval_map_on_real_kitti_frames(tmp_path: Path, capsys) -> None:
+    """16 real KITTI odometry-07 frames with their poses: COLMAP's global mapper with no mask and with ours."""
+    from conftest import shared_data
+    from moseg_ros.io.kitti import kitti_to_bag
+
+    kitti_to_bag(shared_data("kitti_odom07"), tmp_path / "k07", limit=16)
+    out = tmp_path / "map.json"
+    assert moseg(["eval", "map", str(tmp_path / "k07"), "--json", str(out)]) == 0
+    results = json.loads(out.read_text())
+    assert json.loads(capsys.readouterr().out) == results
+    assert set(results) == {"none", "ours"}  # no ground-truth masks in a KITTI bag
+    for mode, row in results.items():
+        for key in ("ate", "rpe", "points3d", "images_registered", "features_lost_pct", "dynamic_landmark_pct"):
+            assert key in row, (mode, key)
+        assert row["images"] == 16 and row["images_registered"] >= 12 and row["points3d"] > 1000
+        assert 0 <= row["ate"] < 0.5 and row["reprojection_error_px"] < 1.5
+    assert results["none"]["features_lost_pct"] == 0.0 and 0 <= results["ours"]["features_lost_pct"] < 10
+    assert out.with_suffix(".png").stat().st_size > 5_000
+
+
+def test_bag_without_frames_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    from moseg_ros.io.bags import BagWriter
+
+    with BagWriter(tmp_path / "two") as writer:
+        for i in range(2):
+            writer.write_image("/camera/image_raw", 1 + i, "cam", np.zeros((40, 60, 3), np.uint8), "rgb8")
+    assert moseg(["eval", "map", str(tmp_path / "two")]) == 2
+    assert "a map needs at least 3" in capsys.readouterr().err
