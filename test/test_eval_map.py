@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 
 from moseg_ros.cli import main as moseg
 from moseg_ros.eval.map import (
+    colmap_camera,
     export_frames,
     extract_features,
     keypoints_by_image,
@@ -63,11 +64,19 @@ class TestTrajectoryErrors:
         assert trajectory_errors(two, two)["ate"] is None
 
 
+def test_colmap_camera_from_a_ros_camera_matrix() -> None:
+    square = np.array([[721.5, 0, 609.6], [0, 721.0, 172.9], [0, 0, 1]])
+    model, params = colmap_camera(square)
+    assert model == "SIMPLE_PINHOLE" and np.allclose([float(v) for v in params.split(",")], [721.25, 610.1, 173.4])
+    model, params = colmap_camera(np.array([[700.0, 0, 320], [0, 500.0, 240], [0, 0, 1]]))
+    assert model == "PINHOLE" and np.allclose([float(v) for v in params.split(",")], [700, 500, 320.5, 240.5])
+
+
 @pytest.fixture(scope="module")
 def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The synthetic `map` street, 12 frames at 621x188 (ground-truth masks and poses included)."""
+    """The synthetic `map` street, 16 frames at 621x188 (ground-truth masks and poses included)."""
     path = tmp_path_factory.mktemp("map") / "street"
-    assert moseg(["synth", "-o", str(path), "--scenario", "map", "--frames", "12", "--width", "621",
+    assert moseg(["synth", "-o", str(path), "--scenario", "map", "--frames", "16", "--width", "621",
                   "--height", "188"]) == 0
     return path
 
@@ -76,7 +85,7 @@ def test_masks_reach_colmap_exactly(street: Path, tmp_path: Path) -> None:
     """COLMAP extracts no feature on a masked pixel, and the mask takes features away."""
     frames = export_frames(street, tmp_path / "images")
     truth = masks_by_stamp(street, GT_DYNAMIC_TOPIC)
-    assert write_colmap_masks(frames, truth, tmp_path / "masks") == len(frames.names) == 12
+    assert write_colmap_masks(frames, truth, tmp_path / "masks") == len(frames.names) == 16
     masked = keypoints_by_image(extract_features(frames, tmp_path / "masked", tmp_path / "masks"))
     plain = keypoints_by_image(extract_features(frames, tmp_path / "plain", None))
     on_movers = 0
@@ -91,6 +100,20 @@ def test_masks_reach_colmap_exactly(street: Path, tmp_path: Path) -> None:
                 on_movers += hits
     assert on_movers > 50  # unmasked, SIFT does find the movers' texture
     assert sum(map(len, masked.values())) < sum(map(len, plain.values()))
+
+
+def test_eval_map_on_the_synthetic_street_sees_landmarks_on_movers(street: Path, tmp_path: Path) -> None:
+    """All three modes on the synthetic street (known K held fixed): unmasked, SIFT puts landmarks on the
+    movers; the ground-truth masks leave none and give the best trajectory."""
+    from moseg_ros.eval.map import evaluate_map
+
+    results = evaluate_map(street, progress=False)
+    assert set(results) == {"none", "ours", "gt"}
+    for row in results.values():
+        assert row["images_registered"] == 16 and row["points3d"] > 1000 and row["ate"] < 0.05
+    assert results["none"]["dynamic_landmark_pct"] > 3.0
+    assert results["gt"]["dynamic_landmark_pct"] == 0.0 and results["gt"]["features_lost_pct"] > 5.0
+    assert results["gt"]["ate"] < results["none"]["ate"]
 
 
 def test_eval_map_on_real_kitti_frames(tmp_path: Path, capsys) -> None:

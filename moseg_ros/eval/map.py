@@ -102,7 +102,12 @@ def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "gl
     if mapper == "global":
         reconstructions = pycolmap.global_mapping(database, frames.folder, output)
     else:
-        reconstructions = pycolmap.incremental_mapping(database, frames.folder, output)
+        options = pycolmap.IncrementalPipelineOptions()
+        # Driving straight ahead, every pair's forward share of the motion exceeds COLMAP's 0.95 bound on the
+        # initial pair, and small steps give triangulation angles of a few degrees.
+        options.mapper.init_max_forward_motion = 1.0
+        options.mapper.init_min_tri_angle = 4.0
+        reconstructions = pycolmap.incremental_mapping(database, frames.folder, output, options=options)
     if not reconstructions:
         return None
     return max(reconstructions.values(), key=lambda r: r.num_reg_images())
@@ -117,9 +122,7 @@ def extract_features(frames: Frames, work: Path, masks: Path | None) -> Path:
     database = work / "database.db"
     reader = pycolmap.ImageReaderOptions()
     if frames.camera_matrix is not None:
-        K = frames.camera_matrix
-        reader.camera_model = "PINHOLE"
-        reader.camera_params = f"{K[0, 0]},{K[1, 1]},{K[0, 2]},{K[1, 2]}"
+        reader.camera_model, reader.camera_params = colmap_camera(frames.camera_matrix)
     if masks is not None:
         reader.mask_path = str(masks)
     extraction = pycolmap.FeatureExtractionOptions()
@@ -128,6 +131,21 @@ def extract_features(frames: Frames, work: Path, masks: Path | None) -> Path:
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
     return database
+
+
+def colmap_camera(K: np.ndarray) -> tuple[str, str]:
+    """COLMAP camera model and parameters for a ROS camera matrix (principal point +0.5: ROS and OpenCV put
+    pixel centres at integers, COLMAP at halves).
+
+    Square pixels (f_x, f_y within 1 %) give SIMPLE_PINHOLE, one focal length that bundle adjustment refines:
+    with f_x and f_y apart, a level camera that only yaws (a car on flat ground, the synthetic street) leaves
+    f_y unobservable (scaling every height by s and f_y by 1/s changes no projection), it drifts (721 -> 224
+    px) and the global mapper drops every track. Other cameras get PINHOLE with both focal lengths.
+    """
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5
+    if abs(fx - fy) <= 0.01 * max(fx, fy):
+        return "SIMPLE_PINHOLE", f"{(fx + fy) / 2},{cx},{cy}"
+    return "PINHOLE", f"{fx},{fy},{cx},{cy}"
 
 
 def keypoints_by_image(database: Path) -> dict[str, np.ndarray]:
