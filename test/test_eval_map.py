@@ -136,6 +136,20 @@ def test_eval_map_on_real_kitti_frames(tmp_path: Path, capsys) -> None:
     assert out.with_suffix(".png").stat().st_size > 5_000
 
 
+def test_a_kitti_pose_file_gives_the_reference_by_image_order(street: Path, tmp_path: Path) -> None:
+    from moseg_ros.eval.map import _poses, file_poses
+
+    in_bag = _poses(street)
+    lines = [" ".join(f"{v:.9f}" for v in T[:3, :4].ravel()) for _, T in sorted(in_bag.items())]
+    (tmp_path / "poses.txt").write_text("\n".join(lines) + "\n")
+    from_file = file_poses(tmp_path / "poses.txt", street)
+    assert from_file.keys() == in_bag.keys()
+    assert all(np.allclose(from_file[s], in_bag[s], atol=1e-6) for s in in_bag)
+    (tmp_path / "short.txt").write_text("\n".join(lines[:5]) + "\n")
+    with pytest.raises(ValueError, match="has 5 poses for the 16 images"):
+        file_poses(tmp_path / "short.txt", street)
+
+
 def test_bag_without_frames_is_a_clear_error(tmp_path: Path, capsys) -> None:
     from moseg_ros.io.bags import BagWriter
 

@@ -7,8 +7,9 @@ input (a feature is never extracted on a masked pixel), sequential matching, the
 COLMAP 4) or the incremental one. Per mode it reports images registered, 3D points, mean reprojection error,
 the features the mask took away, the landmarks observed on a ground-truth moving pixel (synthetic bags) and,
 against ground-truth poses (``/gt/pose`` of the bag, e.g. a synthetic bag or one made by ``moseg kitti2bag``
-with poses), ATE after a similarity alignment and RPE between consecutive registered frames, both from evo.
-A PNG beside the JSON shows the trajectories of the three modes over the ground truth, seen from above.
+with poses, or a KITTI pose file given with ``--poses``), ATE after a similarity alignment and RPE between
+consecutive registered frames, both from evo. A PNG beside the JSON shows the trajectories of the three modes
+over the ground truth, seen from above.
 
 Why COLMAP: it is the reference SfM engine, takes masks natively and runs on a CPU from a pip wheel; a
 visual SLAM front-end fed our masks faces the same question (are the landmarks static?).
@@ -210,9 +211,22 @@ def trajectory_errors(estimated: dict[int, np.ndarray], reference: dict[int, np.
             "rpe": float(rpe.get_statistic(metrics.StatisticsType.rmse)), "aligned": est.positions_xyz}
 
 
-def _poses(bag: Path) -> dict[int, np.ndarray]:
+def file_poses(path: Path, bag: Path) -> dict[int, np.ndarray]:
+    """Ground-truth poses from a KITTI pose file (io/kitti.py's format), line i for the bag's i-th image."""
+    from moseg_ros.io.kitti import parse_poses
+
+    poses = parse_poses(path)
+    stamps = [image.stamp_ns for image in read_images(bag)]
+    if len(poses) < len(stamps):
+        raise ValueError(f"{path} has {len(poses)} poses for the {len(stamps)} images of {bag}")
+    return dict(zip(stamps, poses))
+
+
+def _poses(bag: Path, pose_file: Path | None = None) -> dict[int, np.ndarray]:
     from scipy.spatial.transform import Rotation
 
+    if pose_file is not None:
+        return file_poses(pose_file, bag)
     if GT_POSE_TOPIC not in list_topics(bag):
         return {}
     poses = {}
@@ -258,8 +272,10 @@ def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> di
 
 
 def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "global", every: int = 1,
-                 config: Any = None, work: Path | None = None, progress: bool = True) -> dict[str, Any]:
-    """Run COLMAP per mode on ``bag`` and return {mode: metrics} (modes without masks are left out)."""
+                 config: Any = None, work: Path | None = None, progress: bool = True,
+                 pose_file: Path | None = None) -> dict[str, Any]:
+    """Run COLMAP per mode on ``bag`` and return {mode: metrics} (modes without masks are left out); the
+    ground-truth poses come from ``pose_file`` (a KITTI pose file) when given, else the bag's /gt/pose."""
     from moseg_ros.pipeline import PipelineConfig
 
     import pycolmap
@@ -273,7 +289,7 @@ def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "glo
         work = Path(work or tmp)
         frames = export_frames(bag, work / "images", every)
         truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
-        reference = _poses(bag)
+        reference = _poses(bag, pose_file)
         sources = {"none": None, "ours": _our_masks(bag, masks_bag, config or PipelineConfig(), work)}
         if truth:
             sources["gt"] = truth
@@ -325,6 +341,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="our masks: an output bag of `moseg process`/`replay` (default: run the method now)")
     parser.add_argument("--mapper", choices=MAPPERS, default="global", help="COLMAP's mapper (default: global)")
     parser.add_argument("--every", type=int, default=1, help="take every N-th frame (default 1)")
+    parser.add_argument("--poses", type=Path, metavar="FILE",
+                        help="ground-truth poses: a KITTI pose file, line i for the bag's i-th image (default: "
+                             "the bag's /gt/pose)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results here (and the plot beside)")
     add_settings_arguments(parser)
 
@@ -336,7 +355,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         results = evaluate_map(args.bag, masks_bag=args.masks, mapper=args.mapper, every=args.every,
-                               config=pipeline_config(args))
+                               config=pipeline_config(args), pose_file=args.poses)
     except (FileNotFoundError, ValueError) as error:
         print(f"moseg eval map: error: {error}", file=sys.stderr)
         return 2
@@ -344,7 +363,7 @@ def run(args: argparse.Namespace) -> int:
     print(json.dumps(printable, indent=2))
     if args.json:
         args.json.write_text(json.dumps(printable, indent=2) + "\n")
-        reference = _poses(args.bag)
+        reference = _poses(args.bag, args.poses)
         positions = np.array([reference[s][:3, 3] for s in sorted(reference)]) if reference else None
         plot_trajectories(results, positions, args.json.with_suffix(".png"))
     return 0
