@@ -16,7 +16,6 @@ import time
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
@@ -31,14 +30,6 @@ def _percentiles(ms: np.ndarray) -> dict[str, float]:
     return {"p50": float(np.percentile(ms, 50)), "p95": float(np.percentile(ms, 95))}
 
 
-def _resized(gray: np.ndarray, width: int) -> np.ndarray:
-    scale = min(1.0, width / gray.shape[1])
-    if scale == 1.0:
-        return gray
-    size = (max(32, round(gray.shape[1] * scale)), max(32, round(gray.shape[0] * scale)))
-    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-
-
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
     """Milliseconds per frame (after the first) of KLT tracking plus DIS flow both ways and nothing else.
 
@@ -46,14 +37,15 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     DIS preset the method runs, between consecutive frames at ``working_width``.
     """
     from moseg_ros.frontend.flow import DenseFlow
+    from moseg_ros.frontend.motion import resized_to_width
     from moseg_ros.frontend.tracks import PointTracker
     from moseg_ros.methods.moving_objects import front_end_config
 
     tracks = PointTracker(front_end_config(config).tracks)
     flow = DenseFlow(config.dis_preset())
     grays = [to_gray(f, "mono8" if f.ndim == 2 else "rgb8") for f in frames]
-    tracking = [_resized(g, config.track_width) for g in grays]
-    dense = [_resized(g, config.working_width) for g in grays]
+    tracking = [resized_to_width(g, config.track_width) for g in grays]
+    dense = [resized_to_width(g, config.working_width) for g in grays]
     ms = []
     for i in range(len(frames)):
         start = time.perf_counter()

@@ -24,7 +24,7 @@ from moseg_ros.io.bags import list_topics
 from moseg_ros.params import all_settings
 from moseg_ros.tools.demo import start_segmenter, stop_segmenter
 from moseg_ros.tools.dds import use_loopback
-from moseg_ros.tools.replay import _rclpy_messages, _wait, camera_topics
+from moseg_ros.tools.replay import camera_topics, rclpy_messages, wait_until
 
 _TICKS = os.sysconf("SC_CLK_TCK")
 
@@ -51,7 +51,7 @@ def _load(bag: Path, frames: int) -> tuple[str, list[Any], Any | None]:
     """(image topic, its first ``frames`` rclpy messages, one camera_info or None)."""
     topic, topics = camera_topics(list_topics(bag))
     images, info = [], None
-    for name, _, msg in _rclpy_messages(bag, topics):
+    for name, _, msg in rclpy_messages(bag, topics):
         if name == topic:
             images.append(msg)
         elif info is None:
@@ -118,7 +118,7 @@ def soak(bag: Path, rate: float, seconds: float, *, frames: int = 100, domain_id
         info_publisher = node.create_publisher(type(info), topic.rsplit("/", 1)[0] + "/camera_info",
                                                reliable) if info is not None else None
         spinner.start()
-        _wait(lambda: publisher.get_subscription_count() > 0
+        wait_until(lambda: publisher.get_subscription_count() > 0
               and node.count_publishers("/segmenter/dynamic_mask") > 0, 60.0, "the segmenter")
         time.sleep(0.5)
         samples.append((time.monotonic(), *process_sample(process.pid)))

@@ -54,6 +54,16 @@ class MotionFrontEndConfig:
     close_px: int = 5
 
 
+def resized_to_width(gray: np.ndarray, width: int) -> np.ndarray:
+    """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide, keeping its aspect and at least 32 px a side;
+    returned as is when it is not wider."""
+    scale = min(1.0, width / gray.shape[1])
+    if scale == 1.0:
+        return gray
+    size = (max(32, round(gray.shape[1] * scale)), max(32, round(gray.shape[0] * scale)))
+    return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+
+
 def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int) -> np.ndarray:
     """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more.
 
@@ -181,9 +191,7 @@ class MotionFrontEnd:
         with self.stages("tracks"):
             self._points.update(gray)
             self._frames.append((self._points.ids.copy(), self._points.points.copy()))
-            small = self._dense_size(gray.shape)
-            self._grays.append(cv2.resize(gray, small[::-1], interpolation=cv2.INTER_AREA)
-                               if small != gray.shape else gray)
+            self._grays.append(resized_to_width(gray, self.config.dense_width))
         flows = None
         if self.config.dense and len(self._grays) > self.config.dense_gap:
             with self.stages("flow"):
@@ -236,10 +244,6 @@ class MotionFrontEnd:
             mask = cv2.remap(mask.astype(np.uint8), landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
                              borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
         return mask
-
-    def _dense_size(self, shape: tuple[int, int]) -> tuple[int, int]:
-        scale = min(1.0, self.config.dense_width / shape[1])
-        return max(32, round(shape[0] * scale)), max(32, round(shape[1] * scale))
 
     def _flagged(self, observation: Observation) -> np.ndarray:
         """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows)."""

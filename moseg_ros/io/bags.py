@@ -267,11 +267,24 @@ def _mcap_summary(path: Path) -> Any | None:
             return None
 
 
-def _stream_mcap(path: Path, topics: set[str] | None, counter: list[int]) -> Iterator[tuple[str, int, Any]]:
-    """(topic, log time, message) of an MCAP file in file order, record by record, up to the first damage.
+def _until_damage(items: Iterator[Any], path: Path, counter: list[int]) -> Iterator[Any]:
+    """Yield from ``items``, counting in ``counter[0]``; an error while reading the next one ends the readable
+    part with :class:`BagDamagedError`."""
+    while True:
+        try:
+            item = next(items)
+        except StopIteration:
+            return
+        except Exception as error:  # whatever the damage (length, CRC, codec, sqlite, ROS 1), the readable part ends
+            raise BagDamagedError(path, counter[0], _damage(error)) from None
+        counter[0] += 1
+        yield item
 
-    Needs no summary or index, so it reads what a killed writer left. ``counter[0]`` counts the messages
-    yielded (also across files); a record that cannot be read raises :class:`BagDamagedError`.
+
+def _stream_mcap(path: Path, topics: set[str] | None) -> Iterator[tuple[str, int, Any]]:
+    """(topic, log time, message) of an MCAP file in file order, record by record.
+
+    Needs no summary or index, so it reads what a killed writer left (wrap it in :func:`_until_damage`).
     """
     from mcap.records import Channel, Message, Schema
     from mcap.stream_reader import StreamReader
@@ -280,28 +293,19 @@ def _stream_mcap(path: Path, topics: set[str] | None, counter: list[int]) -> Ite
     channels: dict[int, Any] = {}
     typestores: dict[int, Any] = {}
     with path.open("rb") as stream:
-        records = iter(StreamReader(stream, validate_crcs=True).records)
-        while True:
-            try:
-                record = next(records)
-                if isinstance(record, Schema):
-                    schemas[record.id] = record
-                elif isinstance(record, Channel):
-                    channels[record.id] = record
-                elif isinstance(record, Message):
-                    channel = channels[record.channel_id]
-                    if topics is not None and channel.topic not in topics:
-                        continue
-                    schema = schemas[channel.schema_id]
-                    if schema.id not in typestores:
-                        typestores[schema.id] = _mcap_typestore([schema])
-                    message = typestores[schema.id].deserialize_cdr(record.data, schema.name)
-                    counter[0] += 1
-                    yield channel.topic, record.log_time, message
-            except StopIteration:
-                return
-            except Exception as error:  # whatever the damage (length, CRC, codec), the readable part ends
-                raise BagDamagedError(path, counter[0], _damage(error)) from None
+        for record in StreamReader(stream, validate_crcs=True).records:
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                channels[record.id] = record
+            elif isinstance(record, Message):
+                channel = channels[record.channel_id]
+                if topics is not None and channel.topic not in topics:
+                    continue
+                schema = schemas[channel.schema_id]
+                if schema.id not in typestores:
+                    typestores[schema.id] = _mcap_typestore([schema])
+                yield channel.topic, record.log_time, typestores[schema.id].deserialize_cdr(record.data, schema.name)
 
 
 def _scan_mcap_topics(path: Path) -> dict[str, str]:
@@ -337,12 +341,17 @@ def _rosbag2_mcap_files(folder: Path) -> list[Path]:
     return files or sorted(folder.glob("*.mcap"))
 
 
-def _mcap_topics(path: Path) -> dict[str, str]:
-    summary = _mcap_summary(path)
-    if summary is None:
-        return _scan_mcap_topics(path)
-    return {channel.topic: summary.schemas[channel.schema_id].name
-            for channel in summary.channels.values() if channel.schema_id in summary.schemas}
+def _mcap_files(files: list[Path]) -> tuple[dict[Path, Any | None], dict[str, str]]:
+    """Each MCAP file's summary (None when unfinished or damaged) and the topics of them all."""
+    summaries = {file: _mcap_summary(file) for file in files}
+    topics: dict[str, str] = {}
+    for file, summary in summaries.items():
+        if summary is None:
+            topics.update(_scan_mcap_topics(file))
+        else:
+            topics.update({channel.topic: summary.schemas[channel.schema_id].name
+                           for channel in summary.channels.values() if channel.schema_id in summary.schemas})
+    return summaries, topics
 
 
 def _open_any_reader(path: Path) -> Any | None:
@@ -361,10 +370,10 @@ def list_topics(path: str | Path) -> dict[str, str]:
     """Topics of a bag and their message types ("sensor_msgs/msg/Image", ...)."""
     kind, path = _bag_kind(path)
     if kind == "mcap":
-        return _mcap_topics(path)
+        return _mcap_files([path])[1]
     reader = _open_any_reader(path)
     if reader is None:
-        return {topic: msgtype for file in _rosbag2_mcap_files(path) for topic, msgtype in _mcap_topics(file).items()}
+        return _mcap_files(_rosbag2_mcap_files(path))[1]
     with closing(reader):
         return {topic: info.msgtype for topic, info in reader.topics.items() if info.msgtype}
 
@@ -382,28 +391,20 @@ def _indexed_mcap(path: Path, summary: Any, wanted: set[str], counter: list[int]
     typestore = _mcap_typestore(summary.schemas.values())
     with path.open("rb") as stream:
         messages = make_reader(stream).iter_messages(topics=sorted(wanted), log_time_order=True)
-        while True:
-            try:
-                schema, channel, message = next(messages)
-            except StopIteration:
-                return
-            except Exception as error:  # a chunk that cannot be read ends the readable part
-                raise BagDamagedError(path, counter[0], _damage(error)) from None
+        for schema, channel, message in _until_damage(messages, path, counter):
             if channel.message_encoding != "cdr":
                 raise ValueError(f"{path}: topic {channel.topic} is {channel.message_encoding!r}, not cdr")
-            counter[0] += 1
             yield channel.topic, message.log_time, typestore.deserialize_cdr(message.data, schema.name)
 
 
 def _mcap_messages(files: list[Path], topics: Iterable[str] | None) -> Iterator[tuple[str, int, Any]]:
     """Messages of MCAP files: log-time order through the index when a file has one, file order otherwise."""
-    available = {topic: msgtype for file in files for topic, msgtype in _mcap_topics(file).items()}
+    summaries, available = _mcap_files(files)
     wanted = _check_topics(topics, available)
     counter = [0]
-    for file in files:
-        summary = _mcap_summary(file)
+    for file, summary in summaries.items():
         if summary is None:
-            yield from _stream_mcap(file, wanted, counter)
+            yield from _until_damage(_stream_mcap(file, wanted), file, counter)
         else:
             yield from _indexed_mcap(file, summary, wanted, counter)
 
@@ -422,21 +423,12 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
     if reader is None:
         yield from _mcap_messages(_rosbag2_mcap_files(path), topics)
         return
-    count = 0
     with closing(reader):
         wanted = _check_topics(topics, {c.topic: c.msgtype for c in reader.connections})
         connections = [c for c in reader.connections if c.topic in wanted]
-        messages = reader.messages(connections=connections)
-        while True:
-            try:
-                connection, log_time, raw = next(messages)
-                message = reader.deserialize(raw, connection.msgtype)
-            except StopIteration:
-                return
-            except Exception as error:  # sqlite, ROS 1 and MCAP readers each raise their own types
-                raise BagDamagedError(path, count, _damage(error)) from None
-            count += 1
-            yield connection.topic, log_time, message
+        messages = ((c.topic, log_time, reader.deserialize(raw, c.msgtype))
+                    for c, log_time, raw in reader.messages(connections=connections))
+        yield from _until_damage(messages, path, [0])
 
 
 def _is_image_type(msgtype: str) -> bool:

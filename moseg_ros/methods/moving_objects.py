@@ -24,7 +24,7 @@ import numpy as np
 
 from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, Refit
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width
 from moseg_ros.methods.base import Decision, FrameInput, Status
 from moseg_ros.refit import BackgroundRefit
 
@@ -67,7 +67,6 @@ class MovingObjects:
             self._front_end.reset()
         else:
             self._worker.clear(self._front_end.reset)
-        self._frames = 0
         self._applied = -1
 
     def close(self) -> None:
@@ -77,15 +76,15 @@ class MovingObjects:
 
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
-        tracking = self._tracking_frame(frame.full)
+        tracking = resized_to_width(frame.full, self.config.track_width)
         observation = self._front_end.observe(
             tracking, scaled_camera_matrix(frame.camera_matrix, frame.full.shape, tracking.shape))
         refit = self._refit(observation)
         labels = self._front_end.apply(refit)
-        self._frames += 1
+        first = observation.index == 0
         if frame.instances is not None:
-            decision = self._decide_instances(frame.instances)
-        elif self._frames == 1 or refit is None:
+            decision = self._decide_instances(frame.instances, first)
+        elif first or refit is None:
             decision = Decision(labels, status=Status.WARMUP)
         else:
             decision = Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
@@ -109,8 +108,8 @@ class MovingObjects:
         self._worker.submit(observation)
         return self._worker.latest()
 
-    def _decide_instances(self, instances: np.ndarray) -> Decision:
-        if self._frames == 1:
+    def _decide_instances(self, instances: np.ndarray, first: bool) -> Decision:
+        if first:
             return Decision(instances, status=Status.WARMUP)
         evidence = self._front_end.moving
         if evidence.shape != instances.shape:
@@ -119,11 +118,3 @@ class MovingObjects:
         everywhere = np.ones(instances.shape, dtype=bool)
         return Decision(instances, dynamic_instances(instances, evidence, everywhere,
                                                      self.config.instance_min_fraction))
-
-    def _tracking_frame(self, full: np.ndarray) -> np.ndarray:
-        height, width = full.shape
-        scale = min(1.0, self.config.track_width / width)
-        if scale == 1.0:
-            return full
-        size = (max(32, round(width * scale)), max(32, round(height * scale)))
-        return cv2.resize(full, size, interpolation=cv2.INTER_AREA)

@@ -24,6 +24,7 @@ from moseg_ros.io.bags import BagDamagedError, BagWriter, list_topics, pick_imag
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.tools.fleet import LOCAL, is_bag, process_fleet, summary_table
 
 OUTPUT_PREFIX = "/segmenter"
 
@@ -88,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output rosbag2 MCAP folder; with several bags, the folder of one output bag per input")
     parser.add_argument("--topic", help="image topic (default: the bag's one camera image topic)")
     parser.add_argument("--no-progress", action="store_true", help="do not print progress")
-    parser.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
+    parser.add_argument("--ray", nargs="?", const=LOCAL, metavar="ADDRESS",
                         help="one Ray task per bag: alone, a local Ray on this machine's cores; with an address "
                              "('auto', 'ray://host:10001') that cluster")
     parser.add_argument("--workers", type=int, metavar="N", help="at most N bags at a time with --ray")
@@ -98,15 +99,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _is_fleet(args: argparse.Namespace) -> bool:
-    from moseg_ros.tools.fleet import is_bag
-
     return len(args.bags) > 1 or args.ray is not None or not is_bag(args.bags[0])
 
 
 def run_fleet(args: argparse.Namespace) -> int:
     """Process every bag into the output folder and print the table; exit 1 when a bag failed or was damaged."""
-    from moseg_ros.tools.fleet import process_fleet, summary_table
-
     if args.workers is not None and args.workers < 1:
         print(f"moseg process: error: --workers must be >= 1, got {args.workers}", file=sys.stderr)
         return 2

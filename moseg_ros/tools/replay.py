@@ -69,7 +69,7 @@ class ReplayReport:
         }
 
 
-def _rclpy_messages(bag: Path, topics: dict[str, str]) -> Iterator[tuple[str, int, Any]]:
+def rclpy_messages(bag: Path, topics: dict[str, str]) -> Iterator[tuple[str, int, Any]]:
     """The bag's messages on ``topics`` as rclpy messages (CDR round trip keeps every field, header included)."""
     from rclpy.serialization import deserialize_message
     from rosbags.typesys import Stores, get_typestore
@@ -149,7 +149,8 @@ class _Recorder:
                     self.diagnostics = {kv.key: kv.value for kv in status.values}
 
 
-def _wait(condition: Any, timeout: float, what: str) -> None:
+def wait_until(condition: Any, timeout: float, what: str) -> None:
+    """Poll ``condition`` every 50 ms; TimeoutError naming ``what`` after ``timeout`` seconds."""
     deadline = time.monotonic() + timeout
     while not condition():
         if time.monotonic() > deadline:
@@ -209,16 +210,16 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
                                                       "instances" if name == instances_topic else name, reliable)
                           for name, msgtype in topics.items()}
             spinner.start()
-            _wait(lambda: publishers[topic].get_subscription_count() > 0
+            wait_until(lambda: publishers[topic].get_subscription_count() > 0
                   and node.count_publishers(recorder.mask_topic) > 0, discovery_timeout,
                   f"a segmenter subscribed to {topic} and publishing {recorder.mask_topic}")
             time.sleep(0.5)  # let the remaining endpoints of both participants match
             try:
-                _publish_all(_rclpy_messages(Path(bag), topics), publishers, topic, topics, writer, recorder, rate,
+                _publish_all(rclpy_messages(Path(bag), topics), publishers, topic, topics, writer, recorder, rate,
                              sent, report)
             except BagDamagedError as error:
                 report.input_damage = str(error)
-            _wait(lambda: recorder.has_all_outputs(list(sent)), drain_timeout, "the last masks") if sent else None
+            wait_until(lambda: recorder.has_all_outputs(list(sent)), drain_timeout, "the last masks") if sent else None
         except TimeoutError as error:
             if not sent:
                 raise
