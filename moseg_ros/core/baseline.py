@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.core import geometry
+from moseg_ros.core.robust import fundamental_ransac, homography_ransac
 from moseg_ros.frontend.flow import forward_backward_error, pixel_grid
 
 
@@ -119,17 +120,13 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         noise = 1.4826 * float(np.median(np.linalg.norm(matches - points, axis=1)))
         threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
         return EpipolarResidual(residual, valid, float(threshold), None, 1.0, identity)
-    fundamental, inliers = cv2.findFundamentalMat(points, matches, cv2.USAC_FAST,
-                                                  config.ransac_threshold_px, 0.999, 2000)
-    if fundamental is None or fundamental.shape != (3, 3) or inliers is None:
-        return empty
-    inliers = inliers.ravel().astype(bool)
-    if inliers.sum() < config.min_inliers:
+    fundamental, inliers = fundamental_ransac(points, matches, cv2.USAC_FAST, config.ransac_threshold_px,
+                                              0.999, 2000)
+    if fundamental is None or inliers.sum() < config.min_inliers:
         return empty
 
-    homography, h_inliers = cv2.findHomography(points, matches, cv2.USAC_FAST, config.ransac_threshold_px)
-    planar = (homography is not None and h_inliers is not None
-              and h_inliers.sum() >= config.homography_preference * inliers.sum())
+    homography, h_inliers = homography_ransac(points, matches, cv2.USAC_FAST, config.ransac_threshold_px)
+    planar = homography is not None and h_inliers.sum() >= config.homography_preference * inliers.sum()
     if not planar and homography is not None:
         # Or when Torr's GRIC prefers the homography (F's extra freedom explains only noise).
         f_squared = sampson_pixels(fundamental, points, matches) ** 2
@@ -138,7 +135,6 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         planar = geometry.homography_preferred(f_squared, h_squared, sigma)
     here, there = grid[valid], grid[valid] + to_previous[valid]
     if planar:
-        h_inliers = h_inliers.ravel().astype(bool)
         residual[valid] = homography_distance(homography, here, there)
         inlier_distance = homography_distance(homography, points[h_inliers], matches[h_inliers])
     else:

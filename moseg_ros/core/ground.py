@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from moseg_ros.core.robust import homography_ransac
+
 
 @dataclass(frozen=True)
 class GroundConfig:
@@ -105,7 +107,7 @@ def fit_ground_homography(labels: np.ndarray, flow: np.ndarray, config: GroundCo
     dst = src + uv[usable].astype(np.float32)
     # Flow errors grow with the flow: near the camera the ground moves tens of pixels per frame.
     threshold = max(config.ransac_px, config.ransac_fraction * float(np.median(np.linalg.norm(dst - src, axis=1))))
-    homography, inliers = cv2.findHomography(src, dst, cv2.RANSAC, threshold)
+    homography, inliers = homography_ransac(src, dst, cv2.RANSAC, threshold)
     if homography is None or inliers.mean() < config.min_inlier_fraction:
         return None
     return homography

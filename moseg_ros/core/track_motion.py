@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.core.geometry import homography_preferred, homography_transfer_error, sampson_distance
+from moseg_ros.core.robust import fundamental_ransac, homography_ransac
 
 
 @dataclass(frozen=True)
@@ -113,19 +114,18 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     if np.median(np.linalg.norm(x2 - x1, axis=1)) < config.min_parallax_px:
         # The camera stands still: the dominant motion is the identity, any motion is the residual.
         return np.linalg.norm(x2 - x1, axis=1).astype(np.float32), None
-    fundamental, f_inliers = cv2.findFundamentalMat(x1, x2, cv2.USAC_MAGSAC, config.ransac_px, 0.999, 1000)
-    if fundamental is None or fundamental.shape != (3, 3) or f_inliers is None:
+    fundamental, f_inliers = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
+    if fundamental is None:
         return None
-    homography, h_inliers = cv2.findHomography(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
+    homography, h_inliers = homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
     f_squared = sampson_distance(fundamental[None], x1, x2)[0]
     planar = False
-    if homography is not None and h_inliers is not None:
+    if homography is not None:
         h_squared = 0.5 * homography_transfer_error(homography[None], x1, x2)[0]
         # F is degenerate when the homography explains about as many tracks, or when Torr's GRIC prefers it.
         planar = h_inliers.sum() >= config.homography_preference * f_inliers.sum()
         if not planar:
-            inliers = f_inliers.ravel().astype(bool)
-            sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[inliers]))), config.gric_min_sigma_px)
+            sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[f_inliers]))), config.gric_min_sigma_px)
             planar = homography_preferred(f_squared, h_squared, sigma)
     if planar:
         # F is degenerate: no translation to take a sign from.
@@ -135,7 +135,7 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     signed = None
     if K is not None:
         limit = config.guessed_max_rotation_deg if guessed else np.inf
-        signed = signed_parallax(x1, x2, fundamental, f_inliers.ravel().astype(bool), K, config, limit)
+        signed = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
     return distance, signed
 
 

@@ -1,0 +1,80 @@
+"""core/robust.py: OpenCV's robust fits, with a failure inside OpenCV reported as no model."""
+
+import cv2
+import numpy as np
+import pytest
+
+from moseg_ros.core import robust
+from moseg_ros.core.baseline import epipolar_residual
+from moseg_ros.core.track_motion import pair_evidence
+
+
+def _rigid_pair(n: int = 200, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = np.c_[rng.uniform(-5, 5, (n, 2)), rng.uniform(4, 20, n)]
+    K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    project = lambda P: (P @ K.T)[:, :2] / P[:, 2:3]  # noqa: E731
+    return project(X), project(X + [0.3, 0.0, 0.5])
+
+
+def _raise(*_args, **_kwargs):
+    raise cv2.error("(-215:Assertion failed) !model.empty() in function 'setModelParameters'")
+
+
+class TestFundamentalRansac:
+    def test_known_motion(self):
+        x1, x2 = _rigid_pair()
+        F, inliers = robust.fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0)
+        assert F.shape == (3, 3) and inliers.dtype == bool and inliers.shape == (200,)
+        assert inliers.mean() > 0.95
+        residual = np.abs(np.sum(np.c_[x2, np.ones(200)] * (np.c_[x1, np.ones(200)] @ F.T), axis=1))
+        assert np.median(residual / np.linalg.norm(F)) < 1e-2
+
+    def test_too_few_points(self):
+        x1, x2 = _rigid_pair(5)
+        assert robust.fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0) == (None, None)
+
+    def test_opencv_failure_is_no_model(self, monkeypatch):
+        monkeypatch.setattr(cv2, "findFundamentalMat", _raise)
+        x1, x2 = _rigid_pair()
+        assert robust.fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0) == (None, None)
+
+
+class TestHomographyRansac:
+    def test_known_homography(self):
+        rng = np.random.default_rng(1)
+        H = np.array([[1.01, 0.02, 3.0], [-0.01, 0.99, -2.0], [1e-5, 0.0, 1.0]])
+        x1 = rng.uniform(0, 600, (100, 2))
+        x2 = cv2.perspectiveTransform(x1[None], H)[0]
+        found, inliers = robust.homography_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0)
+        assert inliers.all()
+        np.testing.assert_allclose(found / found[2, 2], H, atol=1e-4)
+
+    def test_opencv_failure_is_no_model(self, monkeypatch):
+        monkeypatch.setattr(cv2, "findHomography", _raise)
+        x1, x2 = _rigid_pair()
+        assert robust.homography_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0) == (None, None)
+
+
+class TestCallersSurviveOpenCVFailures:
+    """A raising estimator gives the callers 'no model', not an exception (a frame with a failed status)."""
+
+    def test_pair_evidence(self, monkeypatch):
+        x1, x2 = _rigid_pair()
+        assert pair_evidence(x1, x2) is not None
+        monkeypatch.setattr(cv2, "findFundamentalMat", _raise)
+        assert pair_evidence(x1, x2) is None
+
+    def test_pair_evidence_without_homography_keeps_f(self, monkeypatch):
+        x1, x2 = _rigid_pair()
+        monkeypatch.setattr(cv2, "findHomography", _raise)
+        distance, _ = pair_evidence(x1, x2)
+        assert np.median(distance) < 0.1
+
+    @pytest.mark.parametrize("estimator", ["findFundamentalMat", "findHomography"])
+    def test_epipolar_residual(self, monkeypatch, estimator):
+        yy, xx = np.mgrid[0:120, 0:160].astype(np.float32)
+        backward = np.stack([(xx - 80) * 0.05, (yy - 60) * 0.05 + 0.002 * xx], axis=-1)
+        monkeypatch.setattr(cv2, estimator, _raise)
+        evidence = epipolar_residual(backward, -backward)
+        assert evidence.residual.shape == (120, 160)
