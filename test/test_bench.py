@@ -39,10 +39,11 @@ def test_pipeline_bench_reports_stages_floor_and_the_refit_worker(textured_bag, 
 def test_memory_slope_and_process_sample():
     import os
 
-    from moseg_ros.bench.soak import memory_slope, process_sample
+    from moseg_ros.bench.soak import memory_by_minute, memory_slope, process_sample
 
     samples = [(t, 100.0 + 0.5 * t, 0.0) for t in range(0, 300, 10)]  # 0.5 MB/s = 30 MB/min
     assert abs(memory_slope(samples, 60.0) - 30.0) < 1e-6
+    assert memory_by_minute(samples) == [100.0, 130.0, 160.0, 190.0, 220.0]  # t = 0, 60, ..., 240 s
     assert memory_slope(samples[:3], 60.0) != memory_slope(samples[:3], 60.0)  # too few samples: nan
     rss, cpu = process_sample(os.getpid())
     assert rss > 10 and cpu > 0
@@ -59,4 +60,5 @@ def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path,
     assert 0 < report["latency_ms_p50"] <= report["latency_ms_p95"]
     assert report["node_dropped"] >= 0 and report["node_exit_code"] == 0
     assert report["rss_mb_start"] > 10 and report["rss_mb_end"] > 10 and report["cpu_percent"] > 0
+    assert report["rss_mb_by_minute"] == [round(report["rss_mb_start"], 1)]  # a 4 s run: its start only
     assert main(["bench", "soak", str(textured_bag), "--set", "nope=1"]) == 2

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import threading
 import time
+import weakref
 
 import numpy as np
 import pytest
@@ -151,5 +153,32 @@ class TestPipelineWithBackgroundRefit:
         finally:
             pipeline.close()
         failed = [r for r in kinds if r.kind is Status.FAILED]
-        assert len(failed) == 1 and "FloatingPointError: degenerate pair" in failed[0].status
+        assert len(failed) == 1 and "RefitError: FloatingPointError: degenerate pair" in failed[0].status
         assert kinds[-1].kind is Status.OK and kinds[-1].masks.dynamic.any()
+
+    def test_a_failed_refit_frees_what_it_held(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Without the cycle collector, the failed fit's locals are gone once its frame has its status (a
+        traceback kept alive, or tied into a cycle, made the node's memory grow with every failure)."""
+        held: list[weakref.ref] = []
+
+        class Arrays:  # stands for the observation and flows a real fit holds
+            pass
+
+        def failing(self, observation):
+            arrays = Arrays()
+            held.append(weakref.ref(arrays))
+            raise FloatingPointError("degenerate pair")
+
+        monkeypatch.setattr(MotionFrontEnd, "refit", failing)
+        pipeline = Pipeline(PipelineConfig(refit="background"))
+        gc.disable()
+        try:
+            statuses = []
+            for i, frame in enumerate(textured_frames(8)):
+                statuses.append(pipeline.process(frame, 1_000 + i * 100_000_000).kind)
+                pipeline.method._worker.wait_idle(5)
+        finally:
+            gc.enable()
+            pipeline.close()
+        assert statuses.count(Status.FAILED) >= 2 and len(held) >= 2
+        assert all(ref() is None for ref in held[:-1])

@@ -4,7 +4,8 @@ Starts ``segmenter`` as its own process (loopback profile, a domain of its own),
 (the first ``--frames`` of them, looped) at ``--rate`` Hz with stamps that keep increasing, and camera_info
 when the bag has it, then reports: masks / frames, latency p50 / p95 (publish -> dynamic mask, matched by
 header stamp), the drops the node reports, the node's resident memory at start and end and its slope after
-the first minute (MB/min; after the first fifth of shorter runs), and its CPU use (100 % = one core).
+the first minute (MB/min; after the first fifth of shorter runs) and at each whole minute (does it level
+off?), and its CPU use (100 % = one core).
 """
 
 from __future__ import annotations
@@ -45,6 +46,14 @@ def memory_slope(samples: list[tuple[float, float, float]], settle_s: float) -> 
         return float("nan")
     slope = np.polyfit(times[later], np.array([mb for _, mb, _ in samples])[later], 1)[0]
     return float(slope * 60.0)
+
+
+def memory_by_minute(samples: list[tuple[float, float, float]]) -> list[float]:
+    """Resident MB at the start and at each whole minute after it (whether the memory levels off)."""
+    times = np.array([t for t, _, _ in samples]) - samples[0][0]
+    minutes = np.arange(int(times[-1] // 60.0) + 1) * 60.0
+    first_after = np.searchsorted(times, minutes)
+    return [round(samples[i][1], 1) for i in first_after]
 
 
 def _load(bag: Path, frames: int) -> tuple[str, list[Any], Any | None]:
@@ -177,6 +186,7 @@ def _report(sent: dict[int, float], listener: _Listener, samples: list[tuple[flo
         "node_refit_age_mean": float(diagnostics.get("refit_age_mean", "nan")),
         "rss_mb_start": samples[0][1], "rss_mb_end": samples[-1][1],
         "rss_slope_mb_per_min": memory_slope(samples, 60.0 if seconds >= 120 else seconds / 5),
+        "rss_mb_by_minute": memory_by_minute(samples),
         "cpu_percent": cpu, "node_exit_code": exit_code, "node_log": log,
     }
 

@@ -26,7 +26,7 @@ from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width
 from moseg_ros.methods.base import Decision, FrameInput, Status
-from moseg_ros.refit import BackgroundRefit
+from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
     from moseg_ros.pipeline import PipelineConfig
@@ -104,7 +104,7 @@ class MovingObjects:
             return self._front_end.refit(observation)
         error = self._worker.take_error()
         if error is not None:
-            raise error
+            raise RefitError.of(error)
         self._worker.submit(observation)
         return self._worker.latest()
 
