@@ -27,8 +27,8 @@ class BackgroundRefit(Generic[Observation, Result]):
         seconds: duration of the last fit.
         error: the exception of a fit that raised, without its traceback (the worker keeps running; the
             caller decides). The traceback would hold the failed fit's frames and their arrays, and a
-            caller that raises the error again would tie them into a reference cycle: over a 30 Hz soak
-            with a failed fit every 20 s, the node's memory grew by 15-20 MB a minute.
+            caller that raises the error again would tie them into a reference cycle that only a full
+            garbage collection frees: the node's memory grew with every failed fit.
     """
 
     def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit") -> None:

@@ -2,8 +2,8 @@
 
 cv2.findFundamentalMat and cv2.findHomography return None for data without a model, but their USAC
 variants can also raise (``!model.empty()`` in setModelParameters, when the final refit of a degenerate
-sample comes out empty: about one frame in 500 of a looped KITTI stream with dropped frames). A frame
-without a model has no motion evidence; it must not be an error.
+sample comes out empty: seen on real KITTI frames streamed with dropped frames). A frame without a model
+has no motion evidence; it must not be an error.
 """
 
 from __future__ import annotations
