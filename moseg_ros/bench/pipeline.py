@@ -26,8 +26,8 @@ from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 
-def _percentiles(ms: np.ndarray) -> dict[str, float]:
-    return {"p50": float(np.percentile(ms, 50)), "p95": float(np.percentile(ms, 95))}
+def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
+    return {f"{prefix}p50": float(np.percentile(ms, 50)), f"{prefix}p95": float(np.percentile(ms, 95))}
 
 
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
@@ -88,11 +88,10 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
     floor = floor_ms(frames, config)
     return {**_refit_numbers(results, pipeline.config.refit),
             "frames": len(ms), "width": int(frames[0].shape[1]), "height": int(frames[0].shape[0]),
-            "ms_mean": float(ms.mean()), "ms_p50": float(np.percentile(ms, 50)),
-            "ms_p95": float(np.percentile(ms, 95)), "ms_max": float(ms.max()),
+            "ms_mean": float(ms.mean()), **_percentiles(ms, "ms_"), "ms_max": float(ms.max()),
             "frames_per_second": float(1e3 / ms.mean()),
             "stages": {name: _percentiles(np.array(v)) for name, v in stages.items() if len(v) == len(ms)},
-            "floor_ms_p50": float(np.percentile(floor, 50)), "floor_ms_p95": float(np.percentile(floor, 95)),
+            **_percentiles(floor, "floor_ms_"),
             "ratio": float(np.percentile(ms, 95) / np.percentile(floor, 95))}
 
 
@@ -102,7 +101,7 @@ def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
     ages = np.array([r.refit_age for r in results if r.refit_age is not None])
     numbers: dict[str, Any] = {"refit": mode, "refits": int(refit_ms.size)}
     if refit_ms.size:
-        numbers.update(refit_ms_p50=float(np.percentile(refit_ms, 50)), refit_ms_p95=float(np.percentile(refit_ms, 95)))
+        numbers.update(_percentiles(refit_ms, "refit_ms_"))
     if ages.size:
         numbers.update(refit_age_mean=float(ages.mean()), refit_age_max=int(ages.max()))
     return numbers

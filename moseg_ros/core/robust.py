@@ -14,8 +14,9 @@ import numpy as np
 Fit = tuple[np.ndarray, np.ndarray] | tuple[None, None]
 
 
-def _checked(model: np.ndarray | None, inliers: np.ndarray | None, shape: tuple[int, int]) -> Fit:
-    if model is None or inliers is None or model.shape != shape:
+def _checked(model: np.ndarray | None, inliers: np.ndarray | None) -> Fit:
+    # Both estimators may return several stacked 3x3 solutions, or an empty one, for degenerate data.
+    if model is None or inliers is None or model.shape != (3, 3):
         return None, None
     return model, inliers.ravel().astype(bool)
 
@@ -28,7 +29,7 @@ def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px
         model, inliers = cv2.findFundamentalMat(x1, x2, method, threshold_px, confidence, max_iterations)
     except cv2.error:
         return None, None
-    return _checked(model, inliers, (3, 3))
+    return _checked(model, inliers)
 
 
 def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float) -> Fit:
@@ -38,4 +39,4 @@ def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px:
         model, inliers = cv2.findHomography(x1, x2, method, threshold_px)
     except cv2.error:
         return None, None
-    return _checked(model, inliers, (3, 3))
+    return _checked(model, inliers)
