@@ -43,11 +43,26 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
     if labels.shape != (height, width):
         labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
     if margin_px > 0 and labels.any():
-        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
-        grown = cv2.dilate(labels.astype(np.float32), kernel).astype(np.int32)
-        labels = np.where(labels > 0, labels, grown)
+        labels = _grown(labels, margin_px)
     dynamic = np.where(labels > 0, 255, 0).astype(np.uint8)
     return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
+
+
+def _grown(labels: np.ndarray, margin_px: int) -> np.ndarray:
+    """``labels`` with every id dilated by ``margin_px`` into the background around it.
+
+    Only the bounding box of the labelled pixels, widened by the margin, can change, so only it is dilated
+    (the masks of a frame are usually a small part of it)."""
+    x, y, w, h = cv2.boundingRect((labels > 0).astype(np.uint8))
+    rows = slice(max(y - margin_px, 0), y + h + margin_px)
+    cols = slice(max(x - margin_px, 0), x + w + margin_px)
+    box = labels[rows, cols]
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+    # float32 holds every id below 2**24 exactly; OpenCV dilates no int32 images.
+    grown = cv2.dilate(box.astype(np.float32), kernel).astype(np.int32)
+    labels = labels.copy()
+    labels[rows, cols] = np.where(box > 0, box, grown)
+    return labels
 
 
 def debug_overlay(rgb: np.ndarray, masks: Masks, alpha: float = 0.5) -> np.ndarray:

@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
+import cv2
 import numpy as np
 import pytest
 
@@ -172,3 +177,21 @@ def test_a_method_that_raises_gives_an_empty_mask_with_the_reason_and_restarts_t
     assert not result.masks.dynamic.any() and result.masks.dynamic.shape == frames[2].shape[:2]
     monkeypatch.undo()
     assert pipeline.process(frames[3], 3 * STEP).status == "warmup"  # the window restarted
+
+
+class TestOpenCVThreads:
+    def test_a_positive_setting_is_taken_as_is(self):
+        before = cv2.getNumThreads()
+        try:
+            Pipeline(PipelineConfig(opencv_threads=3))
+            assert cv2.getNumThreads() == 3
+        finally:
+            cv2.setNumThreads(before)
+
+    def test_zero_follows_the_cpus_the_process_may_run_on(self):
+        code = "import cv2; from moseg_ros.pipeline import Pipeline; Pipeline(); print(cv2.getNumThreads())"
+        pinned = subprocess.run(["taskset", "-c", "0", sys.executable, "-c", code], capture_output=True,
+                                text=True, check=True)
+        assert pinned.stdout.split()[-1] == "1"
+        free = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+        assert free.stdout.split()[-1] == str(len(os.sched_getaffinity(0)))

@@ -69,8 +69,8 @@ def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndar
     frame, where the batched form's homogeneous copies cost more than the arithmetic.
     """
     F = fundamental.astype(np.float32)
-    x, y = points[:, 0].astype(np.float32), points[:, 1].astype(np.float32)
-    u, v = matches[:, 0].astype(np.float32), matches[:, 1].astype(np.float32)
+    x, y = points[:, 0].astype(np.float32, copy=False), points[:, 1].astype(np.float32, copy=False)
+    u, v = matches[:, 0].astype(np.float32, copy=False), matches[:, 1].astype(np.float32, copy=False)
     line = [F[i, 0] * x + F[i, 1] * y + F[i, 2] for i in range(3)]      # F x
     back = [F[0, i] * u + F[1, i] * v + F[2, i] for i in range(2)]      # first two of F^T x'
     numerator = u * line[0] + v * line[1] + line[2]
@@ -133,16 +133,18 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         h_squared = homography_distance(homography, points, matches) ** 2
         sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[inliers]))), config.gric_min_sigma_px)
         planar = geometry.homography_preferred(f_squared, h_squared, sigma)
-    here, there = grid[valid], grid[valid] + to_previous[valid]
+    # Every pixel is scored and the unreliable ones zeroed after: cheaper than gathering the valid ones.
+    here, there = grid.reshape(-1, 2), (grid + to_previous).reshape(-1, 2)
     if planar:
-        residual[valid] = homography_distance(homography, here, there)
+        residual = homography_distance(homography, here, there).reshape(h, w)
         inlier_distance = homography_distance(homography, points[h_inliers], matches[h_inliers])
     else:
         homography = None
-        residual[valid] = sampson_pixels(fundamental, here, there)
+        residual = sampson_pixels(fundamental, here, there).reshape(h, w)
         inlier_distance = sampson_pixels(fundamental, points[inliers], matches[inliers])
     noise = 1.4826 * np.median(inlier_distance)
     threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
+    residual = np.where(valid, residual, np.float32(0.0)).astype(np.float32, copy=False)
     return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()), homography)
 
 

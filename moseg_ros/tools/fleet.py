@@ -87,7 +87,6 @@ def process_job(job: BagJob, config: PipelineConfig, image_topic: str | None = N
         The bag's row of the summary: name, input, output, status ("ok", "damaged": processed up to the
         damage, "failed"), frames_in, masks_out, frames_without_mask, seconds, error.
     """
-    import cv2
     from threadpoolctl import threadpool_limits
 
     from moseg_ros.tools.process import process_bag
@@ -97,7 +96,7 @@ def process_job(job: BagJob, config: PipelineConfig, image_topic: str | None = N
     shutil.rmtree(partial, ignore_errors=True)
     partial.parent.mkdir(parents=True, exist_ok=True)
     start = time.perf_counter()
-    cv2.setNumThreads(1)
+    config = dataclasses.replace(config, opencv_threads=1)
     try:
         with threadpool_limits(1):
             counts = process_bag(job.bag, partial, image_topic=image_topic, config=config)
