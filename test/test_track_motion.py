@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
-from moseg_ros.core.track_motion import (TrackMotionConfig, guessed_camera_matrix, moving_tracks, pair_evidence,
-                                         pair_residual, pair_residuals)
+from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, ground_parallax_ratio, guessed_camera_matrix,
+                                         moving_tracks, pair_evidence, pair_residual, pair_residuals,
+                                         signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -52,8 +54,8 @@ class TestPairResidual:
         x1 = rng.uniform([0, 0], [600, 200], (200, 2))
         x2 = x1 + rng.normal(0, 0.05, x1.shape)
         x2[:20] += [4.0, 0.0]  # a walker in front of a camera on a tripod
-        distance, signed = pair_evidence(x1, x2, TrackMotionConfig(), K)
-        assert signed is None
+        distance, signed, ground = pair_evidence(x1, x2, TrackMotionConfig(), K)
+        assert signed is None and ground is None
         assert np.allclose(distance[:20], 4.0, atol=0.3) and np.median(distance[20:]) < 0.1
 
 
@@ -121,7 +123,7 @@ def _window_evidence(tracks, K, config=TrackMotionConfig()):
     residuals = np.full((len(tracks), tracks.shape[1] - 2), np.nan, np.float32)
     signed = np.full_like(residuals, np.nan)
     for m in range(residuals.shape[1]):
-        distance, parallax = pair_evidence(tracks[:, m], tracks[:, m + 2], config, K)
+        distance, parallax, _ = pair_evidence(tracks[:, m], tracks[:, m + 2], config, K)
         residuals[:, m] = distance
         if parallax is not None:
             signed[:, m] = parallax
@@ -144,7 +146,7 @@ class TestCheirality:
 
     def test_static_points_at_strong_parallax_have_positive_parallax(self):
         tracks, _ = street(n_mover=0)
-        _, parallax = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
+        _, parallax, _ = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
         assert parallax.shape == (len(tracks),) and np.mean(parallax > -1.0) > 0.99
         assert np.percentile(parallax, 90) > 5.0  # near points: strong parallax, and of the right sign
 
@@ -164,3 +166,78 @@ def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_give_no_sign():
     strict = TrackMotionConfig(guessed_max_rotation_deg=0.0)  # every real pair turns a little
     assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)[1] is not None
     assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)[1] is None
+
+
+def road(frames: int = 6, seed: int = 0, sideways: float = 0.0):
+    """Tracks of a camera 1.5 m above a flat road driving 1 m a frame (and ``sideways`` m a frame to the
+    right): points on the road 6.5-40 m ahead, on static boxes standing on it at the roadside, and on a car
+    10-11 m ahead that the camera follows at its own speed (its image does not move). Returns tracks
+    (N, F, 2) and the masks (N,) of road points and of the followed car."""
+    rng = np.random.default_rng(seed)
+    ground = np.column_stack([rng.uniform(-8, 8, 300), np.full(300, 1.5), rng.uniform(6.5, 40, 300)])
+    side = rng.choice([-1.0, 1.0], 200)
+    boxes = np.column_stack([side * rng.uniform(3, 8, 200), rng.uniform(-1.0, 1.5, 200), rng.uniform(8, 30, 200)])
+    car = np.column_stack([rng.uniform(-1, 1, 40), rng.uniform(0.3, 1.5, 40), rng.uniform(10, 11, 40)])
+    tracks = []
+    for t in range(frames):
+        camera = np.array([sideways * t, 0.0, 1.0 * t])
+        tracks.append(np.vstack([project(ground, camera), project(boxes, camera), project(car + camera, camera)]))
+    tracks = np.stack(tracks, axis=1) + rng.normal(0, 0.2, (540, frames, 2))
+    is_road, is_car = np.zeros(540, bool), np.zeros(540, bool)
+    is_road[:300], is_car[500:] = True, True
+    return tracks.astype(np.float32), is_road, is_car
+
+
+def _parallax(x1, x2):
+    F, inliers = cv2.findFundamentalMat(x1.astype(np.float64), x2.astype(np.float64), cv2.USAC_MAGSAC, 1.0,
+                                        0.999, 1000)
+    return signed_parallax(x1.astype(np.float64), x2.astype(np.float64), F, inliers.ravel() > 0, K)
+
+
+class TestSignedParallax:
+    def test_gain_and_epipole_of_a_forward_drive(self):
+        tracks, _, _ = road()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        assert parallax.signed.shape == parallax.gain.shape == (540,) and parallax.gain.dtype == np.float32
+        assert (parallax.gain > 0).all()
+        assert parallax.epipole_row == pytest.approx(K[1, 2], abs=3.0)  # straight ahead: the principal row
+
+    def test_a_sideways_drive_has_no_forward_epipole(self):
+        tracks, _, _ = road(sideways=2.0)
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        assert parallax is not None and parallax.epipole_row is None
+
+
+class TestGroundParallaxRatio:
+    def test_road_points_sit_on_the_floor_and_the_followed_car_far_below_it(self):
+        tracks, is_road, is_car = road()
+        ratio = ground_parallax_ratio(tracks[:, 0], _parallax(tracks[:, 0], tracks[:, 2]))
+        assert ratio.shape == (540,) and ratio.dtype == np.float32
+        assert 0.8 < np.nanmedian(ratio[is_road]) < 2.0  # the floor is the road's, read conservatively low
+        assert np.nanmin(ratio[~is_car]) > TrackMotionConfig().ground_ratio
+        assert abs(np.nanmedian(ratio[is_car])) < 0.1 and np.isfinite(ratio[is_car]).mean() > 0.5
+
+    def test_points_above_the_epipole_are_not_decided(self):
+        tracks, _, _ = road()
+        ratio = ground_parallax_ratio(tracks[:, 0], _parallax(tracks[:, 0], tracks[:, 2]))
+        assert np.isnan(ratio[tracks[:, 0, 1] < K[1, 2] - 3]).all()
+
+    def test_no_ratio_without_a_forward_motion_or_enough_tracks(self):
+        tracks, _, _ = road(sideways=2.0)
+        assert ground_parallax_ratio(tracks[:, 0], _parallax(tracks[:, 0], tracks[:, 2])) is None
+        tracks, _, _ = road()
+        full = _parallax(tracks[:, 0], tracks[:, 2])
+        few = Parallax(full.signed[::25], full.gain[::25], full.epipole_row)
+        assert ground_parallax_ratio(tracks[::25, 0], few) is None
+
+
+def test_the_followed_car_is_caught_by_the_ground_and_missed_by_residual_and_cheirality():
+    tracks, _, is_car = road()
+    residuals = np.full((540, 4), np.nan, np.float32)
+    signed, ground = np.full_like(residuals, np.nan), np.full_like(residuals, np.nan)
+    for m in range(4):
+        distance, parallax, ratio = pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K)
+        residuals[:, m], signed[:, m], ground[:, m] = distance, parallax, ratio
+    assert not moving_tracks(residuals, signed=signed)[is_car].any()  # parallax ~0: neither test sees it
+    flagged = moving_tracks(residuals, signed=signed, ground=ground)
+    assert flagged[is_car].mean() > 0.9 and flagged[~is_car].mean() < 0.01

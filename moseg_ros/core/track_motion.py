@@ -21,6 +21,16 @@ its median signed parallax is below -``cheir_px``. With a guessed K the rotation
 static foliage came out 'behind infinity' (KITTI odometry 07, 3-4.5 degrees per pair): pairs turning more
 than ``guessed_max_rotation_deg`` then give no sign. An oncoming car projects exactly like a nearer static
 point in every pair and stays invisible to both tests.
+
+A car followed at the camera's own speed, or one pulling away slowly, has parallax near zero: in front of
+infinity, but farther than the ground it stands on. Below the horizon no static point can be farther than
+the ground along its ray (the road is the farthest surface there), and a plane's inverse depth is an affine
+function of the pixel, so for a camera that moves forward over a level ground the road's inverse depth grows
+linearly with the row below the epipole. ``ground_parallax_ratio`` fits that floor to the lowest inverse
+depths of the tracks, band by band below the epipole (a low quantile: the road, not the objects on it), and
+gives each track its parallax over the parallax the floor would have there; a track moves when its median
+ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
+horizon) are not decided.
 """
 
 from __future__ import annotations
@@ -51,6 +61,12 @@ class TrackMotionConfig:
     guessed_max_rotation_deg: float = 2.0
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
+    ground_ratio: float = 0.3
+    ground_min_px: float = 1.0
+    ground_bands: int = 12
+    ground_band_tracks: int = 10
+    ground_quantile: float = 10.0
+    ground_min_forward: float = 0.8
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:
@@ -65,10 +81,28 @@ def rotation_degrees(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
+@dataclass(frozen=True)
+class Parallax:
+    """Translational parallax of one frame pair's tracks against the plane at infinity.
+
+    Attributes:
+        signed: (N,) float32 pixels along the direction a static point moves as its inverse depth grows
+            (positive = in front of infinity).
+        gain: (N,) float32 pixels of parallax per unit of inverse depth at each track (the baseline is of
+            unit length, so inverse depths compare within the pair only).
+        epipole_row: the row of the epipole (where the translation points), or None when the camera does not
+            move forward (``ground_min_forward`` of its unit translation along the optical axis).
+    """
+
+    signed: np.ndarray
+    gain: np.ndarray
+    epipole_row: float | None
+
+
 def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inliers: np.ndarray,
                     K: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                    max_rotation_deg: float = np.inf) -> np.ndarray | None:
-    """(N,) float32 signed parallax in pixels from the infinite homography (positive = positive depth).
+                    max_rotation_deg: float = np.inf) -> Parallax | None:
+    """Signed parallax in pixels from the infinite homography (positive = positive depth), and its gain.
 
     Args:
         x1, x2: (N, 2) float64 correspondences, x2^T F x1 = 0.
@@ -81,6 +115,7 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
 
     Returns:
         None when the pair does not decide the sign (too few votes, no consensus, or too much rotation).
+        The translation's sign is the one the votes choose, for ``signed`` and ``epipole_row`` alike.
     """
     R1, R2, t = cv2.decomposeEssentialMat(K.T @ fundamental @ K)
     # Of the two rotations the true one is the small one (the other is turned 180 degrees about the baseline).
@@ -92,28 +127,80 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     at_infinity = a[:, :2] / a[:, 2:3]
     # x2(rho) = (a_xy + rho b_xy) / (a_z + rho b_z); its direction as the inverse depth rho leaves 0.
     direction = b[None, :2] * a[:, 2:3] - b[2] * a[:, :2]
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True) + 1e-12
-    signed = np.sum((x2 - at_infinity) * direction, axis=1)
+    norm = np.linalg.norm(direction, axis=1, keepdims=True)
+    gain = norm.ravel() / np.maximum(a[:, 2] ** 2, 1e-12)  # |d x2 / d rho| at rho = 0
+    signed = np.sum((x2 - at_infinity) * direction / (norm + 1e-12), axis=1)
     votes = signed[inliers & (np.abs(signed) > config.cheir_decided_px)]
     if len(votes) < config.cheir_min_votes:
         return None
     positive = float(np.mean(votes > 0))
     if max(positive, 1.0 - positive) < config.cheir_consensus:
         return None
-    return (signed if positive >= 0.5 else -signed).astype(np.float32)
+    sign = 1.0 if positive >= 0.5 else -1.0
+    # X2 = R X1 + t: a camera driving forward moves the points towards it, so t points backwards.
+    forward = -sign * float(t.ravel()[2])  # t is of unit length
+    epipole_row = float(b[1] / b[2]) if forward >= config.ground_min_forward else None
+    return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row)
+
+
+def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
+                          config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
+    """(N,) float32 each track's signed parallax over the parallax the ground would have at its pixel.
+
+    The ground's inverse depth is taken as ``slope x (row - epipole row)`` below the epipole: in each of
+    ``ground_bands`` bands of rows there, the ``ground_quantile`` percentile of the tracks' inverse depths
+    (signed / gain) over the band's distance from the epipole gives a slope, and the lower quartile of the
+    bands' slopes is the floor's (the road holds the lowest inverse depths of a band; bands seeing only
+    objects on it give steeper slopes).
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame (where ``parallax`` was measured).
+        parallax: the pair's ``signed_parallax``.
+        config: the ground settings.
+
+    Returns:
+        Ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``; None when
+        the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
+    """
+    if parallax.epipole_row is None:
+        return None
+    height = x1[:, 1] - parallax.epipole_row
+    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)  # inverse depth x baseline
+    usable = (height > 0) & (parallax.gain > 0) & (depth > 0)
+    if usable.sum() < 3 * config.ground_band_tracks:
+        return None
+    edges = np.linspace(0.0, float(height[usable].max()) + 1e-6, config.ground_bands + 1)
+    band = np.digitize(height, edges) - 1
+    slopes = []
+    for k in range(config.ground_bands):
+        members = usable & (band == k)
+        if members.sum() >= config.ground_band_tracks:
+            slopes.append(np.percentile(depth[members], config.ground_quantile) / (0.5 * (edges[k] + edges[k + 1])))
+    if len(slopes) < 3:
+        return None
+    floor = np.percentile(slopes, 25) * np.maximum(height, 0.0) * parallax.gain  # the ground's parallax, px
+    decided = floor >= config.ground_min_px
+    ratio = np.full(len(x1), np.nan, dtype=np.float32)
+    ratio[decided] = parallax.signed[decided] / floor[decided]
+    return ratio
+
+
+Evidence = tuple[np.ndarray, np.ndarray | None, np.ndarray | None]
 
 
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  K: np.ndarray | None = None, guessed: bool = False) -> tuple[np.ndarray, np.ndarray | None] | None:
-    """Distances (as ``pair_residual``) and, given a camera matrix K and a non-degenerate F, the signed
-    parallax of ``signed_parallax`` (None otherwise); None when there is no model at all. ``guessed``: K is
-    not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign."""
+                  K: np.ndarray | None = None, guessed: bool = False) -> Evidence | None:
+    """(distance, signed, ground ratio) of one frame pair's tracks; None when there is no model at all.
+
+    distance as ``pair_residual``; given a camera matrix K and a non-degenerate F, the signed parallax of
+    ``signed_parallax`` and the ratio of ``ground_parallax_ratio`` (each None when not decided). ``guessed``:
+    K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign."""
     if len(x1) < config.min_tracks:
         return None
     x1, x2 = np.asarray(x1, dtype=np.float64), np.asarray(x2, dtype=np.float64)
     if np.median(np.linalg.norm(x2 - x1, axis=1)) < config.min_parallax_px:
         # The camera stands still: the dominant motion is the identity, any motion is the residual.
-        return np.linalg.norm(x2 - x1, axis=1).astype(np.float32), None
+        return np.linalg.norm(x2 - x1, axis=1).astype(np.float32), None, None
     fundamental, f_inliers = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
     if fundamental is None:
         return None
@@ -129,14 +216,16 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
             planar = homography_preferred(f_squared, h_squared, sigma)
     if planar:
         # F is degenerate: no translation to take a sign from.
-        return np.sqrt(h_squared).astype(np.float32), None
+        return np.sqrt(h_squared).astype(np.float32), None, None
     # cv2's F satisfies x2^T F x1 = 0, the convention of geometry.sampson_distance(F, x1, x2).
     distance = np.sqrt(f_squared).astype(np.float32)
-    signed = None
-    if K is not None:
-        limit = config.guessed_max_rotation_deg if guessed else np.inf
-        signed = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
-    return distance, signed
+    if K is None:
+        return distance, None, None
+    limit = config.guessed_max_rotation_deg if guessed else np.inf
+    parallax = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
+    if parallax is None:
+        return distance, None, None
+    return distance, parallax.signed, ground_parallax_ratio(x1, parallax, config)
 
 
 def pair_residual(x1: np.ndarray, x2: np.ndarray,
@@ -183,14 +272,15 @@ def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
 
 
 def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  signed: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor), or
-    whose median signed parallax is below -cheir_px.
+                  signed: np.ndarray | None = None, ground: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor), whose
+    median signed parallax is below -cheir_px, or whose median ground ratio is below ground_ratio.
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
         config: the factor and floor.
         signed: optional (N, P) signed parallax (NaN = not measured or pair undecided).
+        ground: optional (N, P) ratios of ``ground_parallax_ratio`` (NaN = undecided).
     """
     measured = ~np.isnan(residuals).all(axis=1)
     moving = np.zeros(residuals.shape[0], dtype=bool)
@@ -203,4 +293,8 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         decided = ~np.isnan(signed).all(axis=1)
         if decided.any():
             moving[decided] |= np.nanmedian(signed[decided], axis=1) < -config.cheir_px
+    if ground is not None:
+        decided = ~np.isnan(ground).all(axis=1)
+        if decided.any():
+            moving[decided] |= np.nanmedian(ground[decided], axis=1) < config.ground_ratio
     return moving

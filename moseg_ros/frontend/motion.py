@@ -159,9 +159,9 @@ class MotionFrontEnd:
 
     def reset_refit(self) -> None:
         """Forget the refit's state: the window's pair fits and the sticky flags."""
-        # One (track ids, distances, signed parallax or None) per frame pair (m, m + gap) of the window:
-        # each pair is fitted once.
-        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None]] = collections.deque(
+        # One (track ids, distances, signed parallax or None, ground ratio or None) per frame pair
+        # (m, m + gap) of the window: each pair is fitted once.
+        self._pairs: collections.deque[tuple[np.ndarray, ...]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
@@ -251,15 +251,17 @@ class MotionFrontEnd:
             self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
-        ids = np.unique(np.concatenate([i for i, _, _ in self._pairs]))
+        ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
         residuals = np.full((ids.size, len(self._pairs)), np.nan, dtype=np.float32)
-        signed = np.full_like(residuals, np.nan)
-        for m, (pair_ids, distance, parallax) in enumerate(self._pairs):
+        signed, ground = np.full_like(residuals, np.nan), np.full_like(residuals, np.nan)
+        for m, (pair_ids, distance, parallax, ratio) in enumerate(self._pairs):
             rows = np.searchsorted(ids, pair_ids)
             residuals[rows, m] = distance
             if parallax is not None:
                 signed[rows, m] = parallax
-        flagged = ids[moving_tracks(residuals, self.config.track_motion, signed)]
+            if ratio is not None:
+                ground[rows, m] = ratio
+        flagged = ids[moving_tracks(residuals, self.config.track_motion, signed, ground)]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive))
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray) -> np.ndarray:
