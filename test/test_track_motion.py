@@ -241,3 +241,33 @@ def test_the_followed_car_is_caught_by_the_ground_and_missed_by_residual_and_che
     assert not moving_tracks(residuals, signed=signed)[is_car].any()  # parallax ~0: neither test sees it
     flagged = moving_tracks(residuals, signed=signed, ground=ground)
     assert flagged[is_car].mean() > 0.9 and flagged[~is_car].mean() < 0.01
+
+
+def pan_follow(frames: int = 6, seed: int = 0):
+    """Tracks of a camera that drives right 0.2 m a frame and pans right 1 degree a frame to keep a car
+    that moves with it still in the image (DAVIS's car-roundabout): static points 5-60 m away, and the car
+    (60 of 400 tracks) 8-9 m ahead, whose image does not move. Against the rotation the car moves opposite to
+    the parallax of every static point: behind infinity. Returns tracks (N, F, 2), is_car (N,)."""
+    rng = np.random.default_rng(seed)
+    static = np.column_stack([rng.uniform(-25, 25, 340), rng.uniform(-3, 2, 340), rng.uniform(5, 60, 340)])
+    car = np.column_stack([rng.uniform(-1.5, 1.5, 60), rng.uniform(-0.5, 1, 60), rng.uniform(8, 9, 60)])
+    tracks = []
+    for t in range(frames):
+        angle = -np.deg2rad(1.0) * t
+        R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+        seen = (static - np.array([0.2 * t, 0.0, 0.0])) @ R.T @ K.T
+        held = car @ K.T
+        tracks.append(np.vstack([seen[:, :2] / seen[:, 2:], held[:, :2] / held[:, 2:]]))
+    tracks = np.stack(tracks, axis=1) + rng.normal(0, 0.2, (400, frames, 2))
+    return tracks.astype(np.float32), np.r_[np.zeros(340, bool), np.ones(60, bool)]
+
+
+def test_a_mover_holding_a_sixth_of_the_tracks_does_not_veto_the_sign():
+    tracks, car = pan_follow()
+    undecided = TrackMotionConfig(cheir_consensus=0.9)  # the car's votes (15 %) used to leave the pair unsigned
+    residuals, signed = _window_evidence(tracks, K, undecided)
+    assert np.isnan(signed).all() and not moving_tracks(residuals, undecided, signed)[car].any()
+    residuals, signed = _window_evidence(tracks, K)
+    assert not moving_tracks(residuals)[car].any()  # the still car lies on its epipolar lines
+    flagged = moving_tracks(residuals, signed=signed)
+    assert flagged[car].mean() > 0.9 and flagged[~car].mean() < 0.01
