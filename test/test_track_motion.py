@@ -1,4 +1,5 @@
-"""The per-track epipolar test: static tracks at any parallax pass, tracks on an independent mover fail."""
+"""The per-track epipolar, cheirality and ground tests, and the dense cheirality test: static points at any
+parallax pass, independent movers fail."""
 
 from __future__ import annotations
 
@@ -6,9 +7,9 @@ import cv2
 import numpy as np
 import pytest
 
-from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, ground_parallax_ratio, guessed_camera_matrix,
-                                         moving_tracks, pair_evidence, pair_residual, pair_residuals,
-                                         signed_parallax)
+from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, behind_infinity, ground_parallax_ratio,
+                                         guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
+                                         pair_residuals, signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -227,7 +228,7 @@ class TestGroundParallaxRatio:
         assert ground_parallax_ratio(tracks[:, 0], _parallax(tracks[:, 0], tracks[:, 2])) is None
         tracks, _, _ = road()
         full = _parallax(tracks[:, 0], tracks[:, 2])
-        few = Parallax(full.signed[::25], full.gain[::25], full.epipole_row)
+        few = Parallax(full.signed[::25], full.gain[::25], full.epipole_row, full.rotation, full.translation)
         assert ground_parallax_ratio(tracks[::25, 0], few) is None
 
 
@@ -271,3 +272,58 @@ def test_a_mover_holding_a_sixth_of_the_tracks_does_not_veto_the_sign():
     assert not moving_tracks(residuals)[car].any()  # the still car lies on its epipolar lines
     flagged = moving_tracks(residuals, signed=signed)
     assert flagged[car].mean() > 0.9 and flagged[~car].mean() < 0.01
+
+
+def pan_follow_flow(height: int = 120, width: int = 320):
+    """The dense flow (current -> previous frame) of the pan after a car above: static surfaces 12-40 m away
+    and the car, a block of pixels whose flow is zero. Returns to_previous (H, W, 2), is_car (H, W), K."""
+    K_flow = guessed_camera_matrix((height, width))
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    depth = 26.0 + 14.0 * np.sin(xs / 37.0) * np.cos(ys / 23.0)
+    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(K_flow).T
+    angle = -np.deg2rad(1.0)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    world = (rays * depth[..., None]) @ R + np.array([0.2, 0.0, 0.0])  # R^T X_c + c of the current camera
+    seen = world @ K_flow.T
+    to_previous = (seen[..., :2] / seen[..., 2:] - np.stack([xs, ys], axis=-1)).astype(np.float32)
+    is_car = np.zeros((height, width), bool)
+    is_car[50:90, 130:200] = True
+    to_previous[is_car] = 0.0
+    return to_previous, is_car, K_flow
+
+
+def _dense_fundamental(to_previous):
+    h, w = to_previous.shape[:2]
+    ys, xs = np.mgrid[0:h:4, 0:w:4]
+    here = np.c_[xs.ravel(), ys.ravel()].astype(np.float64)
+    there = here + to_previous[::4, ::4].reshape(-1, 2)
+    F, _ = cv2.findFundamentalMat(here, there, cv2.USAC_MAGSAC, 0.5, 0.999, 1000)
+    return F
+
+
+class TestBehindInfinity:
+    def test_the_body_of_the_followed_car_is_behind_infinity_and_the_background_is_not(self):
+        to_previous, is_car, K_flow = pan_follow_flow()
+        valid = np.ones(is_car.shape, bool)
+        behind = behind_infinity(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        assert behind.shape == is_car.shape and behind.dtype == bool
+        assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01
+
+    def test_unreliable_pixels_are_never_flagged(self):
+        to_previous, is_car, K_flow = pan_follow_flow()
+        valid = np.ones(is_car.shape, bool)
+        valid[:, 160:] = False
+        behind = behind_infinity(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        assert not behind[:, 160:].any() and behind[is_car & valid].mean() > 0.95
+
+    def test_no_mask_when_the_vote_cannot_decide(self):
+        to_previous, is_car, K_flow = pan_follow_flow()
+        unanimous = TrackMotionConfig(cheir_consensus=1.0)  # the car votes against: never unanimous
+        assert behind_infinity(to_previous, np.ones(is_car.shape, bool), _dense_fundamental(to_previous), K_flow,
+                               unanimous) is None
+
+    def test_a_pair_that_turns_more_than_allowed_gives_no_mask(self):
+        to_previous, is_car, K_flow = pan_follow_flow()  # turns 1 degree
+        F, valid = _dense_fundamental(to_previous), np.ones(is_car.shape, bool)
+        assert behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5) is None
+        assert behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=1.5) is not None

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 
 from moseg_ros.core import geometry
+from moseg_ros.core.flow_field import forward_backward_error, pixel_grid
 from moseg_ros.core.robust import fundamental_ransac, homography_ransac
-from moseg_ros.frontend.flow import forward_backward_error, pixel_grid
 
 
 @dataclass(frozen=True)

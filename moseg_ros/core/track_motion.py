@@ -42,6 +42,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.geometry import homography_preferred, homography_transfer_error, sampson_distance
 from moseg_ros.core.robust import fundamental_ransac, homography_ransac
 
@@ -94,11 +95,41 @@ class Parallax:
             unit length, so inverse depths compare within the pair only).
         epipole_row: the row of the epipole (where the translation points), or None when the camera does not
             move forward (``ground_min_forward`` of its unit translation along the optical axis).
+        rotation: (3, 3) K R K^-1, the infinite homography.
+        translation: (3,) K t, oriented by the vote (``oriented_parallax`` of it is positive for static points).
     """
 
     signed: np.ndarray
     gain: np.ndarray
     epipole_row: float | None
+    rotation: np.ndarray
+    translation: np.ndarray
+
+
+def oriented_parallax(x1: np.ndarray, x2: np.ndarray, rotation: np.ndarray,
+                      translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Parallax of N correspondences along the direction a point moves as its inverse depth rho grows.
+
+    x2(rho) = (a_xy + rho b_xy) / (a_z + rho b_z) with a = rotation @ (x1, 1) and b = translation.
+
+    Args:
+        x1, x2: (N, 2) correspondences (float32 or float64; the result follows them).
+        rotation: (3, 3) the infinite homography K R K^-1.
+        translation: (3,) K t.
+
+    Returns:
+        signed (N,) pixels (positive = in front of infinity for the translation's orientation) and gain
+        (N,) pixels per unit of inverse depth.
+    """
+    dtype = np.result_type(x1, np.float32)
+    H, b = rotation.astype(dtype), translation.astype(dtype)
+    x, y = x1[:, 0], x1[:, 1]
+    a = [H[i, 0] * x + H[i, 1] * y + H[i, 2] for i in range(3)]  # rotated rays, pixels x depth
+    direction_x, direction_y = b[0] * a[2] - b[2] * a[0], b[1] * a[2] - b[2] * a[1]
+    norm = np.sqrt(direction_x ** 2 + direction_y ** 2)
+    gain = norm / np.maximum(a[2] ** 2, 1e-12)  # |d x2 / d rho| at rho = 0
+    signed = ((x2[:, 0] - a[0] / a[2]) * direction_x + (x2[:, 1] - a[1] / a[2]) * direction_y) / (norm + 1e-12)
+    return signed, gain
 
 
 def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inliers: np.ndarray,
@@ -124,14 +155,8 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     R = R1 if np.trace(R1) >= np.trace(R2) else R2
     if rotation_degrees(R) > max_rotation_deg:
         return None
-    a = (K @ R @ np.linalg.inv(K) @ np.c_[x1, np.ones(len(x1))].T).T  # rotated rays, pixels x depth
-    b = (K @ t).ravel()                                                 # the translation, pixels x depth
-    at_infinity = a[:, :2] / a[:, 2:3]
-    # x2(rho) = (a_xy + rho b_xy) / (a_z + rho b_z); its direction as the inverse depth rho leaves 0.
-    direction = b[None, :2] * a[:, 2:3] - b[2] * a[:, :2]
-    norm = np.linalg.norm(direction, axis=1, keepdims=True)
-    gain = norm.ravel() / np.maximum(a[:, 2] ** 2, 1e-12)  # |d x2 / d rho| at rho = 0
-    signed = np.sum((x2 - at_infinity) * direction / (norm + 1e-12), axis=1)
+    rotation, b = K @ R @ np.linalg.inv(K), (K @ t).ravel()
+    signed, gain = oriented_parallax(x1, x2, rotation, b)
     votes = signed[inliers & (np.abs(signed) > config.cheir_decided_px)]
     if len(votes) < config.cheir_min_votes:
         return None
@@ -142,7 +167,43 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     # X2 = R X1 + t: a camera driving forward moves the points towards it, so t points backwards.
     forward = -sign * float(t.ravel()[2])  # t is of unit length
     epipole_row = float(b[1] / b[2]) if forward >= config.ground_min_forward else None
-    return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row)
+    return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b)
+
+
+def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
+                    config: TrackMotionConfig = TrackMotionConfig(), *, threshold_px: float = 1.0,
+                    step: int = 10, inlier_px: float = 0.5, max_rotation_deg: float = np.inf) -> np.ndarray | None:
+    """(H, W) bool: pixels of a dense flow whose signed parallax is below -``threshold_px`` (the cheirality
+    test of ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling
+    away, where tracks are few).
+
+    Args:
+        to_previous: (H, W, 2) flow from the current frame to the previous one.
+        valid: (H, W) bool pixels whose flow is reliable (forward-backward).
+        fundamental: (3, 3) F with x_prev^T F x_cur = 0 (core/baseline.epipolar_residual's).
+        K: (3, 3) camera matrix at the flow's size.
+        config: the sign's vote (``cheir_consensus`` and friends).
+        threshold_px: parallax below minus this moves.
+        step, inlier_px: the vote uses every ``step``-th pixel within ``inlier_px`` of its epipolar line.
+        max_rotation_deg: as in ``signed_parallax``.
+
+    Returns:
+        None when the vote does not decide the translation's sign.
+    """
+    h, w = valid.shape
+    grid = pixel_grid(h, w)
+    sampled = valid[::step, ::step]
+    here, there = grid[::step, ::step][sampled], (grid + to_previous)[::step, ::step][sampled]
+    if len(here) < config.cheir_min_votes:
+        return None
+    near_line = np.sqrt(sampson_distance(fundamental[None], here, there)[0]) < inlier_px
+    vote = signed_parallax(here.astype(np.float64), there.astype(np.float64), fundamental, near_line, K, config,
+                           max_rotation_deg)
+    if vote is None:
+        return None
+    signed, _ = oriented_parallax(grid.reshape(-1, 2), (grid + to_previous).reshape(-1, 2), vote.rotation,
+                                  vote.translation)
+    return (signed.reshape(h, w) < -threshold_px) & valid
 
 
 def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,

@@ -9,7 +9,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   image width are linked, and each group of ``min_group`` or more fills its convex hull.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
   forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
-  texture (``min_texture``: DIS is unreliable on a blank road).
+  texture (``min_texture``: DIS is unreliable on a blank road), and pixels behind infinity by more than
+  ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the smooth body of an object the
+  camera follows has a flow of about zero, which its few tracks cannot fill).
 
 Both are drawn at ``dense_width``; their union, closed and opened, is split into connected regions of
 ``min_region_area`` pixels or more, and the InstanceTracker gives them persistent ids.
@@ -27,8 +29,10 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
-from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix, moving_tracks, pair_evidence
-from moseg_ros.frontend.flow import DenseFlow, pixel_grid
+from moseg_ros.core.track_motion import (TrackMotionConfig, behind_infinity, guessed_camera_matrix, moving_tracks,
+                                         pair_evidence)
+from moseg_ros.core.flow_field import pixel_grid
+from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.timing import Stages
@@ -52,6 +56,12 @@ class MotionFrontEndConfig:
     min_region_area: int = 80
     min_texture: float = 1e-3
     close_px: int = 5
+    dense_cheir_px: float = 1.0
+
+
+def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:
+    """K of an image of ``size`` (H, W) for the same image resized to ``resized``."""
+    return np.diag([resized[1] / size[1], resized[0] / size[0], 1.0]) @ K
 
 
 def resized_to_width(gray: np.ndarray, width: int) -> np.ndarray:
@@ -216,7 +226,7 @@ class MotionFrontEnd:
         dense = None
         if observation.flows is not None:
             with stages("dense_fit"):
-                dense = self._dense_mask(*observation.flows, observation.gray)
+                dense = self._dense_mask(observation)
         return Refit(observation.index, flagged, dense, stages.seconds)
 
     def apply(self, refit: Refit | None) -> np.ndarray:
@@ -283,11 +293,25 @@ class MotionFrontEnd:
         if evidence is not None:
             self._pairs.append((both, *evidence))
 
-    def _dense_mask(self, backward: np.ndarray, forward: np.ndarray, gray: np.ndarray) -> np.ndarray:
+    def _dense_mask(self, observation: Observation) -> np.ndarray:
+        backward, forward = observation.flows
+        gray = observation.gray
         evidence = epipolar_residual(backward, forward, self.config.dense_baseline)
         if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         if self.config.min_texture > 0:
             moving &= cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture
+        if evidence.homography is None and self.config.dense_cheir_px > 0:
+            # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
+            K = scaled_to(observation.camera_matrix, self._tracking_shape, gray.shape)
+            # The rotation limit holds per frame: the dense pair spans dense_gap frames, the track pairs gap.
+            per_frame = self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap
+            limit = per_frame * self.config.dense_gap if observation.guessed else np.inf
+            behind = behind_infinity(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
+                                     threshold_px=self.config.dense_cheir_px,
+                                     inlier_px=self.config.dense_baseline.ransac_threshold_px,
+                                     max_rotation_deg=limit)
+            if behind is not None:
+                moving |= behind
         return moving

@@ -2,8 +2,8 @@
 
 The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave
 the camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex
-hulls, united with a dense epipolar residual mask at the working resolution; regions keep their ids over
-time. The cheirality part of the track test uses camera_info's K when it comes, a guessed one otherwise.
+hulls, united with the dense flow's epipolar residual and cheirality at the working resolution; regions
+keep their ids over time. The cheirality tests use camera_info's K when it comes, a guessed one otherwise.
 Every region the front-end reports is flagged as moving. With upstream instances, they are the objects
 instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
 
@@ -24,7 +24,8 @@ import numpy as np
 
 from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
+                                      scaled_to)
 from moseg_ros.methods.base import Decision, FrameInput, Status
 from moseg_ros.refit import BackgroundRefit, RefitError
 
@@ -43,10 +44,7 @@ def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
 def scaled_camera_matrix(K: np.ndarray | None, size: tuple[int, int],
                          resized: tuple[int, int]) -> np.ndarray | None:
     """K of an image of ``size`` (H, W) for the same image resized to ``resized``; None stays None."""
-    if K is None:
-        return None
-    scale = np.diag([resized[1] / size[1], resized[0] / size[0], 1.0])
-    return scale @ K
+    return None if K is None else scaled_to(K, size, resized)
 
 
 class MovingObjects:

@@ -1,0 +1,40 @@
+"""Flow-field helpers of core/: the pixel grid and the forward-backward error; core/ stands without frontend/."""
+
+from pathlib import Path
+
+import numpy as np
+
+from moseg_ros.core.flow_field import forward_backward_error, pixel_grid
+
+CORE = Path(__file__).resolve().parents[1] / "moseg_ros" / "core"
+
+
+class TestPixelGrid:
+    def test_shape_values_and_step(self):
+        grid = pixel_grid(4, 6)
+        assert grid.shape == (4, 6, 2) and grid.dtype == np.float32
+        assert tuple(grid[3, 5]) == (5.0, 3.0)
+        assert pixel_grid(4, 6, 2).shape == (2, 3, 2) and tuple(pixel_grid(4, 6, 2)[1, 2]) == (4.0, 2.0)
+
+    def test_cached_grids_are_read_only(self):
+        assert pixel_grid(5, 5) is pixel_grid(5, 5) and not pixel_grid(5, 5).flags.writeable
+
+
+class TestForwardBackwardError:
+    def test_a_consistent_translation_has_no_error(self):
+        forward = np.full((20, 30, 2), (2.0, -1.0), np.float32)
+        error = forward_backward_error(forward, -forward)
+        assert error.shape == (20, 30) and np.allclose(error[2:-2, 3:-3], 0.0, atol=1e-5)
+
+    def test_a_mismatch_is_its_size_and_leaving_the_image_is_large(self):
+        forward = np.full((20, 30, 2), (2.0, 0.0), np.float32)
+        backward = np.full((20, 30, 2), (-1.0, 0.0), np.float32)  # comes back 1 px short
+        error = forward_backward_error(forward, backward)
+        assert np.allclose(error[5, 5], 1.0, atol=1e-5)
+        assert error[5, 29] > 100  # lands outside the image
+
+
+def test_core_imports_nothing_from_the_front_end_or_ros():
+    for path in CORE.glob("*.py"):
+        text = path.read_text()
+        assert "moseg_ros.frontend" not in text and "rclpy" not in text, path.name
