@@ -11,7 +11,6 @@ empty mask with status ``failed: <reason>``; both restart the window.
 
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, field, replace
 
@@ -70,7 +69,7 @@ class PipelineConfig:
                          "(every frame waits for its own; deterministic), auto (background in the node, inline in "
                          "the offline tools)", choices=REFIT_MODES)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process (0: "
-                                  "as many as the CPUs the process may run on)", low=0, high=1024)
+                                  "OpenCV's own choice, the CPUs the process may run on)", low=0, high=1024)
 
     def refit_mode(self, live: bool) -> str:
         """background or inline: what refit stands for in a live stream (the node) or offline (tools)."""
@@ -129,19 +128,6 @@ class FrameResult:
         return f"{self.kind.value}: {self.reason}" if self.reason else self.kind.value
 
 
-def opencv_threads(setting_value: int) -> int:
-    """The thread count that ``opencv_threads`` stands for: itself, or for 0 the CPUs this process may run on.
-
-    OpenCV sizes its pool by the machine's CPUs, not by the process's affinity: pinned to fewer cores, its
-    extra threads only wait for each other (the README's one-core timing)."""
-    if setting_value > 0:
-        return setting_value
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
-
 def _stage_seconds(shell: dict[str, float], method: dict[str, float]) -> dict[str, float]:
     """The shell's stages with "decision" split into the method's own stages when it reports them (and
     "method_other", the rest of the method's time)."""
@@ -158,7 +144,8 @@ class Pipeline:
         """``live``: frames come from a camera (the node), so refit ``auto`` runs on a worker thread; offline
         (the tools) every frame waits for its own refit and the same frames always give the same masks."""
         config.validate()
-        cv2.setNumThreads(opencv_threads(config.opencv_threads))
+        if config.opencv_threads > 0:  # leaves cores to the SLAM system beside the node, or one per fleet task
+            cv2.setNumThreads(config.opencv_threads)
         self.config = replace(config, refit=config.refit_mode(live))
         self.method = METHOD_CLASSES[config.method](self.config)
         self._instance_model = TorchScriptInstances(config.instance_model) if config.instance_model else None

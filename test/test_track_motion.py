@@ -203,6 +203,19 @@ class TestSignedParallax:
         assert (parallax.gain > 0).all()
         assert parallax.epipole_row == pytest.approx(K[1, 2], abs=3.0)  # straight ahead: the principal row
 
+    def test_the_epipole_row_is_the_earlier_image_s(self):
+        """Driving along the earlier camera's axis while pitching 1 degree: the epipole of the earlier image
+        is its principal point; the later image's lies f tan(1 degree) = 8.7 px away."""
+        rng = np.random.default_rng(4)
+        points = np.column_stack([rng.uniform(-10, 10, 400), rng.uniform(-3, 1.5, 400), rng.uniform(5, 40, 400)])
+        pitch = np.deg2rad(1.0)
+        R = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+        earlier = points @ K.T
+        later = (points - [0.0, 0.0, 1.0]) @ R.T @ K.T
+        x1, x2 = earlier[:, :2] / earlier[:, 2:], later[:, :2] / later[:, 2:]
+        parallax = _parallax(x1 + rng.normal(0, 0.1, x1.shape), x2 + rng.normal(0, 0.1, x2.shape))
+        assert parallax.epipole_row == pytest.approx(K[1, 2], abs=2.0)
+
     def test_a_sideways_drive_has_no_forward_epipole(self):
         tracks, _, _ = road(sideways=2.0)
         parallax = _parallax(tracks[:, 0], tracks[:, 2])

@@ -32,7 +32,8 @@ linearly with the row below the epipole. ``ground_parallax_ratio`` fits that flo
 depths of the tracks, band by band below the epipole (a low quantile: the road, not the objects on it), and
 gives each track its parallax over the parallax the floor would have there; a track moves when its median
 ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
-horizon) are not decided.
+horizon) are not decided. Whatever rides with the camera below the horizon (a vehicle's own bonnet in a
+dashcam's view) has no parallax and is flagged like a followed car: crop it away upstream.
 """
 
 from __future__ import annotations
@@ -93,8 +94,9 @@ class Parallax:
             (positive = in front of infinity).
         gain: (N,) float32 pixels of parallax per unit of inverse depth at each track (the baseline is of
             unit length, so inverse depths compare within the pair only).
-        epipole_row: the row of the epipole (where the translation points), or None when the camera does not
-            move forward (``ground_min_forward`` of its unit translation along the optical axis).
+        epipole_row: the row of the epipole in the pair's earlier image (where the translation points), or
+            None when the camera does not move forward (``ground_min_forward`` of its unit translation along
+            the optical axis).
         rotation: (3, 3) K R K^-1, the infinite homography.
         translation: (3,) K t, oriented by the vote (``oriented_parallax`` of it is positive for static points).
     """
@@ -125,9 +127,11 @@ def oriented_parallax(x1: np.ndarray, x2: np.ndarray, rotation: np.ndarray,
     H, b = rotation.astype(dtype), translation.astype(dtype)
     x, y = x1[:, 0], x1[:, 1]
     a = [H[i, 0] * x + H[i, 1] * y + H[i, 2] for i in range(3)]  # rotated rays, pixels x depth
+    # A ray turned behind the camera (a_z ~ 0) only comes from a wrong decomposition; keep it finite.
+    a[2] = np.where(np.abs(a[2]) < 1e-9, np.copysign(1e-9, a[2]), a[2])
     direction_x, direction_y = b[0] * a[2] - b[2] * a[0], b[1] * a[2] - b[2] * a[1]
     norm = np.sqrt(direction_x ** 2 + direction_y ** 2)
-    gain = norm / np.maximum(a[2] ** 2, 1e-12)  # |d x2 / d rho| at rho = 0
+    gain = norm / a[2] ** 2  # |d x2 / d rho| at rho = 0
     signed = ((x2[:, 0] - a[0] / a[2]) * direction_x + (x2[:, 1] - a[1] / a[2]) * direction_y) / (norm + 1e-12)
     return signed, gain
 
@@ -166,7 +170,8 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     sign = 1.0 if positive >= 0.5 else -1.0
     # X2 = R X1 + t: a camera driving forward moves the points towards it, so t points backwards.
     forward = -sign * float(t.ravel()[2])  # t is of unit length
-    epipole_row = float(b[1] / b[2]) if forward >= config.ground_min_forward else None
+    earlier = np.linalg.solve(rotation, b)  # K R^T t: the epipole in the earlier image, where x1 lies
+    epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward else None
     return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b)
 
 
@@ -192,8 +197,9 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
     """
     h, w = valid.shape
     grid = pixel_grid(h, w)
+    landing = grid + to_previous
     sampled = valid[::step, ::step]
-    here, there = grid[::step, ::step][sampled], (grid + to_previous)[::step, ::step][sampled]
+    here, there = grid[::step, ::step][sampled], landing[::step, ::step][sampled]
     if len(here) < config.cheir_min_votes:
         return None
     near_line = np.sqrt(sampson_distance(fundamental[None], here, there)[0]) < inlier_px
@@ -201,8 +207,7 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
                            max_rotation_deg)
     if vote is None:
         return None
-    signed, _ = oriented_parallax(grid.reshape(-1, 2), (grid + to_previous).reshape(-1, 2), vote.rotation,
-                                  vote.translation)
+    signed, _ = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
     return (signed.reshape(h, w) < -threshold_px) & valid
 
 

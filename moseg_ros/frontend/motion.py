@@ -29,9 +29,9 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
+from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (TrackMotionConfig, behind_infinity, guessed_camera_matrix, moving_tracks,
                                          pair_evidence)
-from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -111,6 +111,7 @@ class Observation:
         guessed: True when K is a guess (no camera_info).
         flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None.
         gray: the frame at the dense size (for the texture gate).
+        tracking_shape: (H, W) of the frame as tracked (``camera_matrix``'s size).
     """
 
     index: int
@@ -120,6 +121,7 @@ class Observation:
     guessed: bool
     flows: tuple[np.ndarray, np.ndarray] | None
     gray: np.ndarray
+    tracking_shape: tuple[int, int]
 
 
 @dataclass(frozen=True)
@@ -171,8 +173,8 @@ class MotionFrontEnd:
         """Forget the refit's state: the window's pair fits and the sticky flags."""
         # One (track ids, distances, signed parallax or None, ground ratio or None) per frame pair
         # (m, m + gap) of the window: each pair is fitted once.
-        self._pairs: collections.deque[tuple[np.ndarray, ...]] = collections.deque(
-            maxlen=self.config.window_length - self.config.track_motion.gap)
+        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]] = (
+            collections.deque(maxlen=self.config.window_length - self.config.track_motion.gap))
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
@@ -215,7 +217,8 @@ class MotionFrontEnd:
         guessed = camera_matrix is None
         K = guessed_camera_matrix(gray.shape) if guessed else camera_matrix
         self._tracking_shape = gray.shape
-        return Observation(self._index, pair, self._points.ids.copy(), K, guessed, flows, self._grays[-1])
+        return Observation(self._index, pair, self._points.ids.copy(), K, guessed, flows, self._grays[-1],
+                           gray.shape)
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
@@ -304,7 +307,7 @@ class MotionFrontEnd:
             moving &= cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture
         if evidence.homography is None and self.config.dense_cheir_px > 0:
             # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
-            K = scaled_to(observation.camera_matrix, self._tracking_shape, gray.shape)
+            K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
             # The rotation limit holds per frame: the dense pair spans dense_gap frames, the track pairs gap.
             per_frame = self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap
             limit = per_frame * self.config.dense_gap if observation.guessed else np.inf
