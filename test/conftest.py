@@ -10,6 +10,8 @@ import cv2
 import numpy as np
 import pytest
 
+from moseg_ros.core.track_motion import guessed_camera_matrix
+
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 _domains = itertools.count()
 
@@ -61,3 +63,22 @@ def textured_bag(tmp_path: Path) -> Path:
             writer.write_camera_info("/camera/camera_info", stamp, "camera_optical", k, 621, 188,
                                      log_time_ns=stamp)
     return path
+
+
+def pan_follow_flow(height: int = 120, width: int = 320, degrees: float = 1.0):
+    """The dense flow (current -> previous frame) of the pan after a car above (turning ``degrees`` a frame):
+    static surfaces 12-40 m away and the car, a block of pixels whose flow is zero. Returns to_previous
+    (H, W, 2), is_car (H, W), K."""
+    K_flow = guessed_camera_matrix((height, width))
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    depth = 26.0 + 14.0 * np.sin(xs / 37.0) * np.cos(ys / 23.0)
+    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(K_flow).T
+    angle = -np.deg2rad(degrees)
+    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+    world = (rays * depth[..., None]) @ R + np.array([0.2, 0.0, 0.0])  # R^T X_c + c of the current camera
+    seen = world @ K_flow.T
+    to_previous = (seen[..., :2] / seen[..., 2:] - np.stack([xs, ys], axis=-1)).astype(np.float32)
+    is_car = np.zeros((height, width), bool)
+    is_car[50:90, 130:200] = True
+    to_previous[is_car] = 0.0
+    return to_previous, is_car, K_flow

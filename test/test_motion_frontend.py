@@ -5,8 +5,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from conftest import textured_frames
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, hull_mask
+from conftest import pan_follow_flow, textured_frames
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, hull_mask
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -67,3 +67,27 @@ class TestMotionFrontEnd:
         front_end.reset()
         labels = front_end.update(cv2.cvtColor(textured_frames(1)[0], cv2.COLOR_RGB2GRAY))
         assert not labels.any() and len(front_end.moving_track_points) == 0
+
+
+class TestDenseCheirality:
+    """The refit's dense mask holds the body of an object the camera pans after (zero flow: no residual)."""
+
+    @staticmethod
+    def _refit(degrees: float, guessed: bool):
+        backward, is_car, K = pan_follow_flow(degrees=degrees)
+        forward = -backward  # smooth flows: consistent enough for the forward-backward check
+        gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
+        config = MotionFrontEndConfig(dense_width=is_car.shape[1])
+        observation = Observation(1, None, np.zeros(0, np.int64), K, guessed, (backward, forward), gray,
+                                  is_car.shape)
+        return MotionFrontEnd(config).refit(observation).dense, is_car
+
+    def test_the_followed_body_is_in_the_dense_mask(self):
+        dense, is_car = self._refit(0.5, guessed=True)
+        assert dense[is_car].mean() > 0.9 and dense[~is_car].mean() < 0.02
+
+    def test_with_a_guessed_camera_matrix_a_pair_turning_more_than_a_degree_is_not_signed(self):
+        dense, is_car = self._refit(2.0, guessed=True)
+        assert dense[is_car].mean() < 0.1
+        dense, is_car = self._refit(2.0, guessed=False)  # camera_info's K: no limit
+        assert dense[is_car].mean() > 0.9

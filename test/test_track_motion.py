@@ -7,6 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import pan_follow_flow
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, behind_infinity, ground_parallax_ratio,
                                          guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
                                          pair_residuals, signed_parallax)
@@ -285,24 +286,6 @@ def test_a_mover_holding_a_sixth_of_the_tracks_does_not_veto_the_sign():
     assert not moving_tracks(residuals)[car].any()  # the still car lies on its epipolar lines
     flagged = moving_tracks(residuals, signed=signed)
     assert flagged[car].mean() > 0.9 and flagged[~car].mean() < 0.01
-
-
-def pan_follow_flow(height: int = 120, width: int = 320):
-    """The dense flow (current -> previous frame) of the pan after a car above: static surfaces 12-40 m away
-    and the car, a block of pixels whose flow is zero. Returns to_previous (H, W, 2), is_car (H, W), K."""
-    K_flow = guessed_camera_matrix((height, width))
-    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
-    depth = 26.0 + 14.0 * np.sin(xs / 37.0) * np.cos(ys / 23.0)
-    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(K_flow).T
-    angle = -np.deg2rad(1.0)
-    R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
-    world = (rays * depth[..., None]) @ R + np.array([0.2, 0.0, 0.0])  # R^T X_c + c of the current camera
-    seen = world @ K_flow.T
-    to_previous = (seen[..., :2] / seen[..., 2:] - np.stack([xs, ys], axis=-1)).astype(np.float32)
-    is_car = np.zeros((height, width), bool)
-    is_car[50:90, 130:200] = True
-    to_previous[is_car] = 0.0
-    return to_previous, is_car, K_flow
 
 
 def _dense_fundamental(to_previous):
