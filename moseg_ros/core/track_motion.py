@@ -358,11 +358,16 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
     threshold = max(config.factor * float(np.median(per_track)), config.floor_px)
     moving[measured] = per_track > threshold
     if signed is not None:
-        decided = ~np.isnan(signed).all(axis=1)
-        if decided.any():
-            moving[decided] |= np.nanmedian(signed[decided], axis=1) < -config.cheir_px
+        moving |= _median_below(signed, -config.cheir_px)
     if ground is not None:
-        decided = ~np.isnan(ground).all(axis=1)
-        if decided.any():
-            moving[decided] |= np.nanmedian(ground[decided], axis=1) < config.ground_ratio
+        moving |= _median_below(ground, config.ground_ratio)
     return moving
+
+
+def _median_below(values: np.ndarray, limit: float) -> np.ndarray:
+    """(N,) bool: rows of (N, P) ``values`` with a measurement (not NaN) whose median is below ``limit``."""
+    below = np.zeros(values.shape[0], dtype=bool)
+    decided = ~np.isnan(values).all(axis=1)
+    if decided.any():
+        below[decided] = np.nanmedian(values[decided], axis=1) < limit
+    return below

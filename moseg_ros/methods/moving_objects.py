@@ -41,12 +41,6 @@ def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
                    dense_width=config.working_width, min_region_area=config.min_region_area)
 
 
-def scaled_camera_matrix(K: np.ndarray | None, size: tuple[int, int],
-                         resized: tuple[int, int]) -> np.ndarray | None:
-    """K of an image of ``size`` (H, W) for the same image resized to ``resized``; None stays None."""
-    return None if K is None else scaled_to(K, size, resized)
-
-
 class MovingObjects:
     """Weight-free moving-object regions from sparse and dense epipolar evidence."""
 
@@ -75,8 +69,8 @@ class MovingObjects:
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
         tracking = resized_to_width(frame.full, self.config.track_width)
-        observation = self._front_end.observe(
-            tracking, scaled_camera_matrix(frame.camera_matrix, frame.full.shape, tracking.shape))
+        K = None if frame.camera_matrix is None else scaled_to(frame.camera_matrix, frame.full.shape, tracking.shape)
+        observation = self._front_end.observe(tracking, K)
         refit = self._refit(observation)
         labels = self._front_end.apply(refit)
         first = observation.index == 0
