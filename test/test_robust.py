@@ -68,7 +68,7 @@ class TestCallersSurviveOpenCVFailures:
     def test_pair_evidence_without_homography_keeps_f(self, monkeypatch):
         x1, x2 = _rigid_pair()
         monkeypatch.setattr(cv2, "findHomography", _raise)
-        distance, _, _ = pair_evidence(x1, x2)
+        distance = pair_evidence(x1, x2).distance
         assert np.median(distance) < 0.1
 
     @pytest.mark.parametrize("estimator", ["findFundamentalMat", "findHomography"])

@@ -34,11 +34,22 @@ gives each track its parallax over the parallax the floor would have there; a tr
 ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
 horizon) are not decided. Whatever rides with the camera below the horizon (a vehicle's own bonnet in a
 dashcam's view) has no parallax and is flagged like a followed car: crop it away upstream.
+
+An oncoming car is the opposite case: it closes in faster than the camera drives, so it projects like a
+static point nearer than it is, and nearer than the ground it stands on. Below the horizon a static surface is
+never nearer than what is visible under it in the same column (the road under an upright object is nearer
+towards the camera, and the object's own lower part is as near), so ``footing_excess`` compares each track's
+inverse depth with a low order statistic (``footing_support``) of the inverse depths of the tracks below it
+in its column band (``footing_band`` of the tracks' horizontal extent): a track moves when its parallax
+exceeds ``1 + footing_margin`` times what that footing would give it by more than ``footing_px`` (median over
+the pairs). Tracks the ground test flags (followed cars) are no footing; an order statistic rather than the
+minimum, because KLT tracks right under a moving object's lower edge often follow the object.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -71,6 +82,10 @@ class TrackMotionConfig:
     ground_band_tracks: int = 10
     ground_quantile: float = 10.0
     ground_min_forward: float = 0.8
+    footing_margin: float = 0.4
+    footing_px: float = 1.0
+    footing_band: float = 0.01
+    footing_support: int = 3
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:
@@ -253,22 +268,80 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
     return ratio
 
 
-Evidence = tuple[np.ndarray, np.ndarray | None, np.ndarray | None]
+def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
+                   config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
+    """(N,) float32 pixels by which each track's parallax exceeds what the surface under it allows.
+
+    For a track below the epipole, its footing is the ``footing_support``-th lowest inverse depth (signed /
+    gain) of the tracks below it within ``footing_band`` of the tracks' horizontal extent; the excess is
+    ``signed - (1 + footing_margin) x footing x gain``. A static track's excess is negative; an oncoming car's
+    is positive (it closes in faster than the camera drives and looks nearer than the road under it).
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax``.
+        ground: (N,) the pair's ``ground_parallax_ratio`` or None; tracks below ``ground_ratio`` are no
+            footing (a followed car looks farther than anything behind it).
+        config: the footing settings (``ground_min_px``: where the footing's parallax is below it, the track
+            is not decided).
+
+    Returns:
+        Excesses, NaN where not decided; None when the camera does not move forward.
+    """
+    if parallax.epipole_row is None:
+        return None
+    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
+    below_horizon = x1[:, 1] > parallax.epipole_row
+    footing = below_horizon & (parallax.gain > 0) & (depth > 0)
+    if ground is not None:
+        footing &= ~(ground < config.ground_ratio)
+    band = config.footing_band * float(np.ptp(x1[:, 0]))
+    tested = np.flatnonzero(below_horizon)
+    support = _lowest_below(x1, depth, np.flatnonzero(footing), tested, band, config.footing_support)
+    ahead = support * parallax.gain[tested]  # the parallax the footing's depth gives at the track
+    excess = np.full(len(x1), np.nan, dtype=np.float32)
+    decided = np.isfinite(ahead) & (ahead >= config.ground_min_px)
+    excess[tested[decided]] = (parallax.signed[tested] - (1.0 + config.footing_margin) * ahead)[decided]
+    return excess
+
+
+def _lowest_below(x: np.ndarray, values: np.ndarray, candidates: np.ndarray, tested: np.ndarray, band: float,
+                  k: int, chunk: int = 512) -> np.ndarray:
+    """(len(tested),) the k-th lowest ``values`` of the candidates lower in the image than each tested point
+    and within ``band`` of its column (inf when fewer than k); in chunks of tested points, to bound memory."""
+    lowest = np.full(len(tested), np.inf, dtype=np.float32)
+    if len(candidates) < k:
+        return lowest
+    cx, cy, cv = x[candidates, 0], x[candidates, 1], values[candidates].astype(np.float32)
+    for start in range(0, len(tested), chunk):
+        rows = tested[start:start + chunk]
+        under = (cy[None] > x[rows, 1][:, None]) & (np.abs(cx[None] - x[rows, 0][:, None]) < band)
+        lowest[start:start + chunk] = np.partition(np.where(under, cv[None], np.inf), k - 1, axis=1)[:, k - 1]
+    return lowest
+
+
+class PairEvidence(NamedTuple):
+    """One frame pair's evidence per track: ``distance`` as ``pair_residual``; given a camera matrix and a
+    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``ground_parallax_ratio``) and ``footing``
+    (``footing_excess``), each None when not decided."""
+
+    distance: np.ndarray
+    signed: np.ndarray | None = None
+    ground: np.ndarray | None = None
+    footing: np.ndarray | None = None
 
 
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  K: np.ndarray | None = None, guessed: bool = False) -> Evidence | None:
-    """(distance, signed, ground ratio) of one frame pair's tracks; None when there is no model at all.
+                  K: np.ndarray | None = None, guessed: bool = False) -> PairEvidence | None:
+    """The evidence of one frame pair's tracks (``PairEvidence``); None when there is no model at all.
 
-    distance as ``pair_residual``; given a camera matrix K and a non-degenerate F, the signed parallax of
-    ``signed_parallax`` and the ratio of ``ground_parallax_ratio`` (each None when not decided). ``guessed``:
-    K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign."""
+    ``guessed``: K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign."""
     if len(x1) < config.min_tracks:
         return None
     x1, x2 = np.asarray(x1, dtype=np.float64), np.asarray(x2, dtype=np.float64)
     if np.median(np.linalg.norm(x2 - x1, axis=1)) < config.min_parallax_px:
         # The camera stands still: the dominant motion is the identity, any motion is the residual.
-        return np.linalg.norm(x2 - x1, axis=1).astype(np.float32), None, None
+        return PairEvidence(np.linalg.norm(x2 - x1, axis=1).astype(np.float32))
     fundamental, f_inliers = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
     if fundamental is None:
         return None
@@ -284,16 +357,17 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
             planar = homography_preferred(f_squared, h_squared, sigma)
     if planar:
         # F is degenerate: no translation to take a sign from.
-        return np.sqrt(h_squared).astype(np.float32), None, None
+        return PairEvidence(np.sqrt(h_squared).astype(np.float32))
     # cv2's F satisfies x2^T F x1 = 0, the convention of geometry.sampson_distance(F, x1, x2).
     distance = np.sqrt(f_squared).astype(np.float32)
     if K is None:
-        return distance, None, None
+        return PairEvidence(distance)
     limit = config.guessed_max_rotation_deg if guessed else np.inf
     parallax = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
     if parallax is None:
-        return distance, None, None
-    return distance, parallax.signed, ground_parallax_ratio(x1, parallax, config)
+        return PairEvidence(distance)
+    ground = ground_parallax_ratio(x1, parallax, config)
+    return PairEvidence(distance, parallax.signed, ground, footing_excess(x1, parallax, ground, config))
 
 
 def pair_residual(x1: np.ndarray, x2: np.ndarray,
@@ -313,7 +387,7 @@ def pair_residual(x1: np.ndarray, x2: np.ndarray,
         geometry is not determined) or RANSAC finds no model.
     """
     evidence = pair_evidence(x1, x2, config)
-    return None if evidence is None else evidence[0]
+    return None if evidence is None else evidence.distance
 
 
 def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
@@ -340,15 +414,18 @@ def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
 
 
 def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  signed: np.ndarray | None = None, ground: np.ndarray | None = None) -> np.ndarray:
+                  signed: np.ndarray | None = None, ground: np.ndarray | None = None,
+                  footing: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor), whose
-    median signed parallax is below -cheir_px, or whose median ground ratio is below ground_ratio.
+    median signed parallax is below -cheir_px, whose median ground ratio is below ground_ratio, or whose
+    median footing excess is above footing_px.
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
         config: the factor and floor.
         signed: optional (N, P) signed parallax (NaN = not measured or pair undecided).
         ground: optional (N, P) ratios of ``ground_parallax_ratio`` (NaN = undecided).
+        footing: optional (N, P) excesses of ``footing_excess`` (NaN = undecided).
     """
     measured = ~np.isnan(residuals).all(axis=1)
     moving = np.zeros(residuals.shape[0], dtype=bool)
@@ -361,6 +438,8 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         moving |= _median_below(signed, -config.cheir_px)
     if ground is not None:
         moving |= _median_below(ground, config.ground_ratio)
+    if footing is not None:
+        moving |= _median_below(-footing, -config.footing_px)
     return moving
 
 

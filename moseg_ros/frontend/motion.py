@@ -3,10 +3,12 @@
 Two kinds of evidence, both residuals of the camera's own (dominant) rigid motion:
 
 - sparse: KLT tracks over a causal window; a track moves when its epipolar distance, a median over the
-  window's frame pairs, stands out, or when its median signed parallax says it lies "behind infinity"
-  (cheirality with camera_info's K or a guessed one, core/track_motion.py). A track flagged in
-  ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than ``link_fraction`` of the
-  image width are linked, and each group of ``min_group`` or more fills its convex hull.
+  window's frame pairs, stands out, when its median signed parallax says it lies "behind infinity"
+  (cheirality with camera_info's K or a guessed one), or, for a camera driving forward, when it lies farther
+  than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
+  A track flagged in ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than
+  ``link_fraction`` of the image width are linked, and each group of ``min_group`` or more fills its convex
+  hull.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
   forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
   texture (``min_texture``: DIS is unreliable on a blank road), and pixels behind infinity by more than
@@ -30,8 +32,8 @@ from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
 from moseg_ros.core.flow_field import pixel_grid
-from moseg_ros.core.track_motion import (TrackMotionConfig, behind_infinity, guessed_camera_matrix, moving_tracks,
-                                         pair_evidence)
+from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, behind_infinity, guessed_camera_matrix,
+                                         moving_tracks, pair_evidence)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -171,10 +173,9 @@ class MotionFrontEnd:
 
     def reset_refit(self) -> None:
         """Forget the refit's state: the window's pair fits and the sticky flags."""
-        # One (track ids, distances, signed parallax or None, ground ratio or None) per frame pair
-        # (m, m + gap) of the window: each pair is fitted once.
-        self._pairs: collections.deque[tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]] = (
-            collections.deque(maxlen=self.config.window_length - self.config.track_motion.gap))
+        # One (track ids, PairEvidence) per frame pair (m, m + gap) of the window: each pair is fitted once.
+        self._pairs: collections.deque[tuple[np.ndarray, PairEvidence]] = collections.deque(
+            maxlen=self.config.window_length - self.config.track_motion.gap)
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
@@ -265,16 +266,14 @@ class MotionFrontEnd:
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
-        residuals = np.full((ids.size, len(self._pairs)), np.nan, dtype=np.float32)
-        signed, ground = np.full_like(residuals, np.nan), np.full_like(residuals, np.nan)
-        for m, (pair_ids, distance, parallax, ratio) in enumerate(self._pairs):
+        # (distance, signed, ground, footing) x (track, pair), NaN where a pair did not measure it.
+        tables = np.full((len(PairEvidence._fields), ids.size, len(self._pairs)), np.nan, dtype=np.float32)
+        for m, (pair_ids, evidence) in enumerate(self._pairs):
             rows = np.searchsorted(ids, pair_ids)
-            residuals[rows, m] = distance
-            if parallax is not None:
-                signed[rows, m] = parallax
-            if ratio is not None:
-                ground[rows, m] = ratio
-        flagged = ids[moving_tracks(residuals, self.config.track_motion, signed, ground)]
+            for table, values in zip(tables, evidence):
+                if values is not None:
+                    table[rows, m] = values
+        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:])]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive))
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray) -> np.ndarray:
@@ -294,7 +293,7 @@ class MotionFrontEnd:
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
         evidence = pair_evidence(x1[i1], x2[i2], self.config.track_motion, K, guessed)
         if evidence is not None:
-            self._pairs.append((both, *evidence))
+            self._pairs.append((both, evidence))
 
     def _dense_mask(self, observation: Observation) -> np.ndarray:
         backward, forward = observation.flows
