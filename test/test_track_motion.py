@@ -394,17 +394,18 @@ class TestFootingExcess:
         above_car = is_road & (tracks[:, 0, 1] < tracks[is_car, 0, 1].max())
         assert above_car.sum() > 20 and not (excess[above_car] > TrackMotionConfig().footing_px).any()
 
-    def test_the_order_statistic_does_not_depend_on_the_chunk(self):
+    def test_the_order_statistic_matches_a_brute_force_one(self):
         rng = np.random.default_rng(5)
         x = rng.uniform(0, 100, (300, 2))
+        x[:40, 0] = 50.0  # a column holding many candidates, and ties
         values = rng.uniform(0, 1, 300)
         candidates, tested = np.arange(0, 300, 2), np.arange(300)
-        whole = _lowest_below(x, values, candidates, tested, 10.0, 3, chunk=1000)
-        assert np.array_equal(whole, _lowest_below(x, values, candidates, tested, 10.0, 3, chunk=7))
-        point = 0
-        under = candidates[(x[candidates, 1] > x[point, 1]) & (np.abs(x[candidates, 0] - x[point, 0]) < 10.0)]
-        expected = np.sort(values[under])[2] if len(under) >= 3 else np.inf
-        assert whole[point] == pytest.approx(expected)
+        lowest = _lowest_below(x, values, candidates, tested, 10.0, 3)
+        for point in tested:
+            under = candidates[(x[candidates, 1] > x[point, 1]) & (np.abs(x[candidates, 0] - x[point, 0]) < 10.0)]
+            expected = np.sort(values[under])[2] if len(under) >= 3 else np.inf
+            assert lowest[point] == pytest.approx(expected)
+        assert np.isinf(_lowest_below(x, values, candidates[:2], tested, 10.0, 3)).all()
 
 
 def test_the_oncoming_car_is_caught_by_its_footing_and_missed_by_every_other_test():

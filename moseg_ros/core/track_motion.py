@@ -306,18 +306,28 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
 
 
 def _lowest_below(x: np.ndarray, values: np.ndarray, candidates: np.ndarray, tested: np.ndarray, band: float,
-                  k: int, chunk: int = 512) -> np.ndarray:
+                  k: int) -> np.ndarray:
     """(len(tested),) the k-th lowest ``values`` of the candidates lower in the image than each tested point
-    and within ``band`` of its column (inf when fewer than k); in chunks of tested points, to bound memory."""
+    and within ``band`` of its column (inf when fewer than k).
+
+    The candidates are sorted by column, so each tested point compares only with the run of candidates in its
+    band (a (tested, longest run) table instead of (tested, candidates))."""
     lowest = np.full(len(tested), np.inf, dtype=np.float32)
-    if len(candidates) < k:
+    if len(candidates) < k or len(tested) == 0:
         return lowest
-    cx, cy, cv = x[candidates, 0], x[candidates, 1], values[candidates].astype(np.float32)
-    for start in range(0, len(tested), chunk):
-        rows = tested[start:start + chunk]
-        under = (cy[None] > x[rows, 1][:, None]) & (np.abs(cx[None] - x[rows, 0][:, None]) < band)
-        lowest[start:start + chunk] = np.partition(np.where(under, cv[None], np.inf), k - 1, axis=1)[:, k - 1]
-    return lowest
+    order = candidates[np.argsort(x[candidates, 0], kind="stable")]
+    cx = x[order, 0]
+    first = np.searchsorted(cx, x[tested, 0] - band, side="right")
+    stop = np.searchsorted(cx, x[tested, 0] + band, side="left")
+    run = int((stop - first).max())
+    if run < k:
+        return lowest
+    index = first[:, None] + np.arange(run)
+    inside = index < stop[:, None]
+    index = order[np.minimum(index, len(order) - 1)]
+    under = inside & (x[index, 1] > x[tested, 1][:, None])
+    table = np.where(under, values[index].astype(np.float32), np.inf)
+    return np.partition(table, k - 1, axis=1)[:, k - 1]
 
 
 class PairEvidence(NamedTuple):
