@@ -5,8 +5,11 @@ Subscribes ``image`` (sensor_msgs/Image or CompressedImage via ``image_transport
 (only while subscribed) and ``/diagnostics``. Every output carries the input image's header unchanged.
 
 The subscription callback only enqueues; one worker thread decodes and segments, so a slow frame never
-blocks the executor. The queue is bounded and the newest frames win: an overflow drops the oldest frame
-and counts it in the diagnostics.
+blocks the executor. The queue is bounded and the newest frames win: on overflow the oldest frame leaves the
+queue unprocessed, and with ``overflow`` "carry" (the default) it gets the newest masks under its own header
+at once, so every frame still gets masks when the camera is faster than the method ("drop": it gets none).
+Both are counted in the diagnostics. A carried mask is published when its frame leaves the queue, so it can
+come before the mask of an older frame still being processed: pair images and masks by stamp.
 """
 
 from __future__ import annotations
@@ -29,10 +32,10 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, Hi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.io.frames import decode_frame, decode_instances
-from moseg_ros.io.image import image_from_array
+from moseg_ros.io.image import compressed_size, image_from_array
 from moseg_ros.params import Setting, all_settings, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
-from moseg_ros.render import debug_overlay
+from moseg_ros.render import Masks, debug_overlay
 
 def _describe(entry: Setting) -> ParameterDescriptor:
     """A read-only parameter descriptor with the setting's range, or its choices in the constraints text."""
@@ -61,6 +64,7 @@ class _Counters:
     frames_in: int = 0
     frames_out: int = 0
     dropped: int = 0
+    carried: int = 0
     bad_input: int = 0
     resets: int = 0
     failures: int = 0
@@ -91,6 +95,8 @@ class SegmenterNode(Node):
         self.camera_matrix: np.ndarray | None = None
         self._camera_size: tuple[int, int] = (0, 0)
         self._last_warning: dict[str, float] = {}
+        self._newest_masks: Masks | None = None  # what a carried frame gets
+        self._publishing = threading.Lock()  # the worker and the executor (carried frames) both publish
 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
         self.pub_dynamic = self.create_publisher(Image, "~/dynamic_mask", reliable)
@@ -146,11 +152,20 @@ class SegmenterNode(Node):
             self.counters.frames_in += 1
             self._arrivals.append(now)
             if len(self._queue) >= self.settings["queue_size"]:
-                self._queue.popleft()
-                self.counters.dropped += 1
-                self._warn("dropped", "worker is behind: dropped the oldest queued frame")
+                self._overflow(self._queue.popleft()[0])
             self._queue.append((msg, now))
             self._wake.notify()
+
+    def _overflow(self, msg: Any) -> None:
+        """The oldest queued frame leaves the queue unprocessed: carry the newest masks to it, or drop it."""
+        masks = self._newest_masks
+        if self.settings["overflow"] == "carry" and masks is not None and _size_of(msg) == masks.dynamic.shape:
+            self._publish_masks(msg.header, masks)
+            self.counters.carried += 1
+            self._warn("carried", "worker is behind: the oldest queued frame got the newest masks")
+            return
+        self.counters.dropped += 1
+        self._warn("dropped", "worker is behind: dropped the oldest queued frame")
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         # moving_objects uses K for its cheirality test; without it (or for another image size) K is guessed.
@@ -232,24 +247,29 @@ class SegmenterNode(Node):
 
     def _publish(self, header: Any, frame: np.ndarray, result: FrameResult) -> None:
         masks = result.masks
-        self.pub_dynamic.publish(image_from_array(Image, masks.dynamic, "mono8", header))
-        self.pub_static.publish(image_from_array(Image, masks.static, "mono8", header))
-        self.pub_labels.publish(image_from_array(Image, masks.instance_labels, "32SC1", header))
+        self._publish_masks(header, masks)
+        self._newest_masks = masks
         if self.pub_debug.get_subscription_count() > 0:
             rgb = frame if frame.ndim == 3 else np.repeat(frame[..., None], 3, axis=2)
             self.pub_debug.publish(image_from_array(Image, debug_overlay(rgb, masks), "rgb8", header))
 
+    def _publish_masks(self, header: Any, masks: Masks) -> None:
+        with self._publishing:
+            self.pub_dynamic.publish(image_from_array(Image, masks.dynamic, "mono8", header))
+            self.pub_static.publish(image_from_array(Image, masks.static, "mono8", header))
+            self.pub_labels.publish(image_from_array(Image, masks.instance_labels, "32SC1", header))
+
     def _publish_diagnostics(self) -> None:
         c = self.counters
         latencies = np.array(self._latencies) * 1e3 if self._latencies else np.zeros(1)
-        problems = c.dropped + c.bad_input + c.failures
+        problems = c.dropped + c.carried + c.bad_input + c.failures
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             name=f"{self.get_name()}: motion segmentation",
-            message="dropped, skipped or failed frames" if problems else "ok",
+            message="dropped, carried, skipped or failed frames" if problems else "ok",
             hardware_id=self.get_fully_qualified_name())
         values = {
-            "frames_in": c.frames_in, "frames_out": c.frames_out, "dropped": c.dropped,
+            "frames_in": c.frames_in, "frames_out": c.frames_out, "dropped": c.dropped, "carried": c.carried,
             "bad_input": c.bad_input, "resets": c.resets, "failures": c.failures,
             "frames_without_instances": c.no_instances,
             "input_rate_hz": f"{_rate(self._arrivals):.2f}", "output_rate_hz": f"{_rate(self._departures):.2f}",
@@ -288,6 +308,17 @@ def _rate(times: collections.deque[float]) -> float:
     if len(times) < 2 or times[-1] <= times[0]:
         return 0.0
     return (len(times) - 1) / (times[-1] - times[0])
+
+
+def _size_of(msg: Any) -> tuple[int, int] | None:
+    """(H, W) an image message declares (a compressed one's header), None when it cannot be read."""
+    if not hasattr(msg, "format"):
+        return (msg.height, msg.width)
+    try:
+        width, height = compressed_size(np.frombuffer(bytes(msg.data), dtype=np.uint8))
+    except ValueError:
+        return None
+    return (height, width)
 
 
 def _stamp_text(msg: Any) -> str:

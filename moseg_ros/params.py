@@ -17,6 +17,7 @@ from typing import Any, Iterable, Sequence
 import yaml
 
 QOS_CHOICES = ("sensor_data", "reliable", "best_effort")
+OVERFLOW_CHOICES = ("carry", "drop")
 
 
 class SettingsError(ValueError):
@@ -90,8 +91,12 @@ class NodeSettings:
     max_pixels: int = setting(16_777_216, "largest image accepted, in pixels (raw: declared size; compressed: "
                               "its header's, read before decoding): a decompression bomb is refused cheaply",
                               low=1, high=2**31 - 1)
-    queue_size: int = setting(1, "frames waiting for the worker; the oldest is dropped on overflow (1: the "
-                              "newest frame wins, the lowest latency; more only buffers bursts)", low=1, high=100)
+    queue_size: int = setting(1, "frames waiting for the worker; the oldest leaves the queue on overflow (1: "
+                              "the newest frame wins, the lowest latency; more only buffers bursts)", low=1, high=100)
+    overflow: str = setting("carry", "what a frame that leaves the queue unprocessed gets: `carry` publishes the "
+                            "newest masks under its own header at once (counted `carried`: as old as the newest "
+                            "processed frame), `drop` publishes nothing for it (counted `dropped`)",
+                            choices=OVERFLOW_CHOICES)
     diagnostics_period_s: float = setting(1.0, "period of /diagnostics", low=0.1, high=60.0)
     warn_throttle_s: float = setting(5.0, "minimum time between repeated warnings of one kind", low=0.0,
                                      high=600.0)

@@ -58,7 +58,8 @@ def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path,
     assert report["frames"] == 20 and 0 < report["masks"] <= 20
     assert report["masked_fraction"] == report["masks"] / 20
     assert 0 < report["latency_ms_p50"] <= report["latency_ms_p95"]
-    assert report["node_dropped"] >= 0 and report["node_exit_code"] == 0
+    assert report["node_dropped"] >= 0 and report["node_carried"] >= 0 and report["node_exit_code"] == 0
+    assert 0 < report["processed_fraction"] <= report["masked_fraction"] and report["node_latency_ms_p95"] > 0
     assert report["rss_mb_start"] > 10 and report["rss_mb_end"] > 10 and report["cpu_percent"] > 0
     assert report["rss_mb_by_minute"] == [round(report["rss_mb_start"], 1)]  # a 4 s run: its start only
     assert main(["bench", "soak", str(textured_bag), "--set", "nope=1"]) == 2

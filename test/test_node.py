@@ -261,7 +261,8 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
 
 def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, monkeypatch):
     log = tmp_path / "log"
-    process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50"])
+    process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50",
+                                                       "overflow:=drop"])
     probe = _Probe(ros_domain, monkeypatch)
     try:
         assert probe.wait_for_node(), log.read_text()
@@ -275,6 +276,33 @@ def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, 
         assert counts["dropped"] > 0 and counts["frames_out"] + counts["dropped"] == 15, counts
         assert len(probe.masks) == counts["frames_out"]
         assert stamp_to_ns(probe.masks[-1].header.stamp) == 54 * 1_000_000_000  # the newest frame won
+        assert process.poll() is None
+    finally:
+        probe.close()
+        stop_segmenter(process)
+
+
+def test_overflow_carries_the_newest_masks_to_every_skipped_frame(ros_domain, tmp_path, monkeypatch):
+    """The default overflow policy: a burst far faster than the worker still gets one mask per frame, each with
+    its own frame's header and size; the frames the worker skipped are counted as carried, none dropped."""
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50"])
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.wait_for_node(), log.read_text()
+        frames = textured_frames(15, 375, 1242)
+        probe.send_and_wait(_image(frames[0], 40 * 1_000_000_000), expect_mask=True)  # masks to carry exist
+        for i, frame in enumerate(frames[1:], start=1):
+            probe.publisher.publish(_image(frame, (40 + i) * 1_000_000_000))
+        assert probe.spin_until(lambda: len(probe.masks) == 15, 30), (len(probe.masks), probe.diagnostics)
+        probe.spin_until(lambda: probe.diagnostics.get("frames_in") == "15", 5)
+        probe.spin_until(lambda: False, 1.5)  # one more diagnostics period after the last mask
+        counts = {k: int(probe.diagnostics[k]) for k in ("frames_in", "frames_out", "carried", "dropped")}
+        assert counts["carried"] > 0 and counts["dropped"] == 0, counts
+        assert counts["frames_out"] + counts["carried"] == 15, counts
+        stamps = sorted(stamp_to_ns(m.header.stamp) for m in probe.masks)
+        assert stamps == [(40 + i) * 1_000_000_000 for i in range(15)]
+        assert all(m.header.frame_id == "camera" and (m.height, m.width) == (375, 1242) for m in probe.masks)
         assert process.poll() is None
     finally:
         probe.close()

@@ -3,7 +3,9 @@
 Starts ``segmenter`` as its own process (loopback profile, a domain of its own), publishes the bag's images
 (the first ``--frames`` of them, looped) at ``--rate`` Hz with stamps that keep increasing, and camera_info
 when the bag has it, then reports: masks / frames, latency p50 / p95 (publish -> dynamic mask, matched by
-header stamp), the drops the node reports, the node's resident memory at start and end and its slope after
+header stamp; carried masks, which the node publishes for frames it skips, come at once and count too), the
+drops and carried frames the node reports, the share of frames it processed and its own p95 latency over them
+(queue arrival -> masks published), the node's resident memory at start and end and its slope after
 the first minute (MB/min; after the first fifth of shorter runs) and at each whole minute (does it level
 off?), and its CPU use (100 % = one core).
 """
@@ -183,6 +185,9 @@ def _report(sent: dict[int, float], listener: _Listener, samples: list[tuple[flo
         "latency_ms_p50": float(np.percentile(latency, 50)) if latency.size else None,
         "latency_ms_p95": float(np.percentile(latency, 95)) if latency.size else None,
         "node_dropped": int(diagnostics.get("dropped", -1)),
+        "node_carried": int(diagnostics.get("carried", -1)),
+        "processed_fraction": int(diagnostics.get("frames_out", 0)) / max(len(sent), 1),
+        "node_latency_ms_p95": float(diagnostics.get("latency_ms_p95", "nan")),
         "node_refit_age_mean": float(diagnostics.get("refit_age_mean", "nan")),
         "rss_mb_start": samples[0][1], "rss_mb_end": samples[-1][1],
         "rss_slope_mb_per_min": memory_slope(samples, 60.0 if seconds >= 120 else seconds / 5),
