@@ -22,9 +22,6 @@ class TrackerConfig:
     # cuts a third of the tracking time and moves the tracks by 0.03 px (p95), far below the 1 px
     # forward-backward and RANSAC thresholds.
     stop_px: float = 0.1
-    # New corners are sought every ``seed_every`` frames (and whenever fewer than half of max_points live):
-    # corner detection over the whole image costs about as much as tracking a third of the points.
-    seed_every: int = 1
 
 
 class PointTracker:
@@ -47,16 +44,13 @@ class PointTracker:
         self.points = np.zeros((0, 2), dtype=np.float32)
         self._previous: np.ndarray | None = None
         self._next_id = 0
-        self._frame = 0
 
     def update(self, gray: np.ndarray) -> None:
         """Track the living points into ``gray`` ((H, W) uint8), then seed new ones."""
         if self._previous is not None and len(self.points):
             self._track(self._previous, gray)
-        if self._frame % self.config.seed_every == 0 or 2 * len(self.points) < self.config.max_points:
-            self._seed(gray)
+        self._seed(gray)
         self._previous = gray
-        self._frame += 1
 
     def _track(self, previous: np.ndarray, gray: np.ndarray) -> None:
         start = self.points.reshape(-1, 1, 2)
