@@ -4,7 +4,7 @@ import json
 
 from moseg_ros.cli import main
 from moseg_ros.pipeline import PipelineConfig
-from moseg_ros.synth.evaluate import score_scene, totals
+from moseg_ros.synth.evaluate import by_object, score_scene, totals
 
 
 def test_car_ahead_scored_by_both_methods():
@@ -40,6 +40,17 @@ def test_command_prints_and_writes_totals(tmp_path, capsys):
     assert "parked_car_1:0/3" in printed and "static object-frames flagged 0/3" in printed
     data = json.loads(out.read_text())
     assert data["totals"]["static_seen"] == 3 and data["scenes"][0]["preset"] == "parked"
+    assert "by object: parked_car 0/3" in printed and data["by_object"]["parked_car"]["seen"] == 3
+
+
+def test_object_frames_are_summed_per_kind_of_object():
+    scenes = [{"car_ahead": {"moving": True, "flagged": 3, "seen": 5},
+               "parked_car_1": {"moving": False, "flagged": 0, "seen": 4}},
+              {"parked_car_1": {"moving": False, "flagged": 1, "seen": 2},
+               "parked_car_2": {"moving": False, "flagged": 0, "seen": 3}}]
+    assert by_object(scenes) == {"car_ahead": {"moving": True, "flagged": 3, "seen": 5},
+                                 "parked_car": {"moving": False, "flagged": 1, "seen": 9}}
+    assert list(by_object(scenes)) == ["car_ahead", "parked_car"]
 
 
 def test_unknown_preset_is_refused(capsys):

@@ -6,13 +6,14 @@ in a frame, after the first --skip frames) counts as flagged when at least --cov
 dynamic mask. With --instances (always for object_level) the exact instance maps are its upstream instances
 (what `use_instances` gives the node) and an object-frame is flagged when its id is among the frame's dynamic
 ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
-as name:flagged/seen, * = moving) and the totals; --json writes them.
+as name:flagged/seen, * = moving), the totals per kind of object and overall; --json writes them.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -69,6 +70,19 @@ def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
             "static_flagged_fraction": out["static_flagged"] / max(out["static_seen"], 1)}
 
 
+def by_object(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, dict[str, int | bool]]:
+    """Object-frames flagged and counted per kind of object over scored scenes (a name without its number:
+    "parked_car_1" and "parked_car_2" are both "parked_car"), in the order the kinds first appear."""
+    out: dict[str, dict[str, int | bool]] = {}
+    for scene in scenes:
+        for name, obj in scene.items():
+            kind = re.sub(r"_\d+$", "", name)
+            entry = out.setdefault(kind, {"moving": obj["moving"], "flagged": 0, "seen": 0})
+            entry["flagged"] += int(obj["flagged"])
+            entry["seen"] += int(obj["seen"])
+    return out
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg synth-eval`."""
     parser.add_argument("--presets", default=",".join(EVAL_PRESETS),
@@ -105,10 +119,13 @@ def run(args: argparse.Namespace) -> int:
             print(f"{preset:10s} {seed:2d}  " + " ".join(
                 f"{name}{'*' if o['moving'] else ''}:{o['flagged']}/{o['seen']}" for name, o in scene.items()))
     total = totals(scenes)
+    kinds = by_object(scenes)
+    print("by object: " + ", ".join(f"{kind}{'*' if o['moving'] else ''} {o['flagged']}/{o['seen']}"
+                                    for kind, o in kinds.items()))
     print(f"moving object-frames flagged {total['moving_flagged']}/{total['moving_seen']} "
           f"({100 * total['moving_flagged_fraction']:.1f} %), static object-frames flagged "
           f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
           f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
     if args.json:
-        args.json.write_text(json.dumps({"totals": total, "scenes": rows}, indent=2))
+        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows}, indent=2))
     return 0
