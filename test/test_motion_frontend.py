@@ -78,7 +78,7 @@ class TestDenseCheirality:
         forward = -backward  # smooth flows: consistent enough for the forward-backward check
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         config = MotionFrontEndConfig(dense_width=is_car.shape[1])
-        observation = Observation(1, None, np.zeros(0, np.int64), K, guessed, (backward, forward), gray,
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, guessed, (backward, forward), gray,
                                   is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_car
 
@@ -91,3 +91,47 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+def far_followed_car(frames: int = 8, seed: int = 0):
+    """Track positions of a camera 1.5 m above a road driving 1 m a frame between two walls (x = +-6 m),
+    following a car 1 m wide 30 m ahead at its own speed, at the focus of expansion: over two frames the road
+    under the car moves about half a pixel, over seven about two and a half. Returns points (F, N, 2),
+    is_car (N,) and K (640x240 image)."""
+    K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
+    rng = np.random.default_rng(seed)
+    road = np.column_stack([rng.uniform(-6, 6, 600), np.full(600, 1.5), rng.uniform(8, 60, 600)])
+    road = road[~((np.abs(road[:, 0]) < 0.8) & (road[:, 2] > 29))]  # hidden by the car
+    walls = np.column_stack([rng.choice([-6.0, 6.0], 300), rng.uniform(-3, 1.5, 300), rng.uniform(10, 60, 300)])
+    car = np.column_stack([rng.uniform(-0.5, 0.5, 40), rng.uniform(0.3, 1.5, 40), np.full(40, 30.0)])
+    points = []
+    for t in range(frames):
+        world = np.vstack([road, walls]) - [0.0, 0.0, float(t)]
+        seen = np.vstack([world, car]) @ K.T
+        points.append(seen[:, :2] / seen[:, 2:] + rng.normal(0, 0.1, (len(seen), 2)))
+    is_car = np.r_[np.zeros(len(road) + len(walls), bool), np.ones(40, bool)]
+    return np.stack(points).astype(np.float32), is_car, K
+
+
+def _refit_stream(points: np.ndarray, K: np.ndarray, long_pairs: bool) -> np.ndarray:
+    """Ids the front-end's refit flags at the last of ``points``' frames (fed as observations, no dense
+    flow); ``long_pairs`` False hides the window's first-to-last pair."""
+    front_end = MotionFrontEnd(MotionFrontEndConfig(window_length=len(points), dense=False))
+    ids = np.arange(points.shape[1])
+    flagged = np.zeros(0, np.int64)
+    for t in range(2, len(points)):
+        long_pair = (ids, points[0], ids, points[t]) if long_pairs and t == len(points) - 1 else None
+        observation = Observation(t, (ids, points[t - 2], ids, points[t]), long_pair, ids, K, False, None,
+                                  np.zeros((240, 640), np.uint8), (240, 640))
+        flagged = front_end.refit(observation).flagged
+    return flagged
+
+
+def test_the_window_s_long_pair_decides_a_followed_car_at_the_focus_of_expansion():
+    points, is_car, K = far_followed_car()
+    short_only = np.isin(np.arange(len(is_car)), _refit_stream(points, K, long_pairs=False))
+    # Only where the car is widest and lowest does the road under it move a pixel in two frames (0.40).
+    assert short_only[is_car].mean() < 0.5
+    flagged = np.isin(np.arange(len(is_car)), _refit_stream(points, K, long_pairs=True))
+    assert flagged[is_car].mean() > short_only[is_car].mean() + 0.25  # 0.75
+    assert flagged[~is_car].mean() < 0.01

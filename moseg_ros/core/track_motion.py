@@ -342,10 +342,13 @@ class PairEvidence(NamedTuple):
 
 
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  K: np.ndarray | None = None, guessed: bool = False) -> PairEvidence | None:
+                  K: np.ndarray | None = None, guessed: bool = False,
+                  planar_check: bool = True) -> PairEvidence | None:
     """The evidence of one frame pair's tracks (``PairEvidence``); None when there is no model at all.
 
-    ``guessed``: K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign."""
+    ``guessed``: K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign.
+    ``planar_check``: False skips the homography's test of F's degeneracy (a caller that knows the camera
+    translates, from a pair of the same window; the homography fit is the costlier half)."""
     if len(x1) < config.min_tracks:
         return None
     x1, x2 = np.asarray(x1, dtype=np.float64), np.asarray(x2, dtype=np.float64)
@@ -355,7 +358,8 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     fundamental, f_inliers = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
     if fundamental is None:
         return None
-    homography, h_inliers = homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
+    homography, h_inliers = (homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px) if planar_check
+                             else (None, None))
     f_squared = sampson_distance(fundamental[None], x1, x2)[0]
     planar = False
     if homography is not None:

@@ -6,6 +6,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   window's frame pairs, stands out, when its median signed parallax says it lies "behind infinity"
   (cheirality with camera_info's K or a guessed one), or, for a camera driving forward, when it lies farther
   than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
+  The ground and footing tests also get the pair of the window's first and last frames: near the focus of
+  expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
   A track flagged in ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than
   ``link_fraction`` of the image width are linked, and each group of ``min_group`` or more fills its convex
   hull.
@@ -22,7 +24,7 @@ Both are drawn at ``dense_width``; their union, closed and opened, is split into
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -108,6 +110,8 @@ class Observation:
     Attributes:
         index: the frame's number since the last reset.
         pair: (ids, points) of the frames ``gap`` back and now, or None before there are two.
+        long_pair: the same for the window's first frame and now, or None until the window is full (or when
+            it spans no more than ``gap`` frames).
         alive: ids of the tracks living now.
         camera_matrix: (3, 3) K at the tracking size (guessed when ``guessed``).
         guessed: True when K is a guess (no camera_info).
@@ -118,6 +122,7 @@ class Observation:
 
     index: int
     pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
+    long_pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
     alive: np.ndarray
     camera_matrix: np.ndarray
     guessed: bool
@@ -161,7 +166,7 @@ class MotionFrontEnd:
         self._regions.reset()
         self._index = -1
         self._frames: collections.deque[tuple[np.ndarray, np.ndarray]] = collections.deque(
-            maxlen=self.config.track_motion.gap + 1)
+            maxlen=max(self.config.window_length, self.config.track_motion.gap + 1))
         self._grays: collections.deque[np.ndarray] = collections.deque(maxlen=self.config.dense_gap + 1)
         # The backward dense flow (frame -> the one before) of the last frames, to carry an older refit's
         # dense mask to the current frame.
@@ -176,6 +181,8 @@ class MotionFrontEnd:
         # One (track ids, PairEvidence) per frame pair (m, m + gap) of the window: each pair is fitted once.
         self._pairs: collections.deque[tuple[np.ndarray, PairEvidence]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
+        # The ground and footing tests' evidence of the newest long pair (window's first frame -> now), or None.
+        self._long: tuple[np.ndarray, PairEvidence] | None = None
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
@@ -211,15 +218,16 @@ class MotionFrontEnd:
                 earlier, now = self._grays[0], self._grays[-1]
                 flows = (self._flow(now, earlier), self._flow(earlier, now))
             self._backward.append((self._index, flows[0]))
-        pair = None
-        if len(self._frames) > self.config.track_motion.gap:
-            (ids1, x1), (ids2, x2) = self._frames[0], self._frames[-1]
-            pair = (ids1, x1, ids2, x2)
+        gap = self.config.track_motion.gap
+        pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None
+        long_pair = None
+        if len(self._frames) == self.config.window_length > gap + 1:
+            long_pair = (*self._frames[0], *self._frames[-1])
         guessed = camera_matrix is None
         K = guessed_camera_matrix(gray.shape) if guessed else camera_matrix
         self._tracking_shape = gray.shape
-        return Observation(self._index, pair, self._points.ids.copy(), K, guessed, flows, self._grays[-1],
-                           gray.shape)
+        return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, guessed, flows,
+                           self._grays[-1], gray.shape)
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
@@ -261,18 +269,35 @@ class MotionFrontEnd:
 
     def _flagged(self, observation: Observation) -> np.ndarray:
         """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows)."""
+        newest = None
         if observation.pair is not None:
-            self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
+            newest = self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
+            if newest is not None:
+                self._pairs.append(newest)
+        # The long pair is fitted only while the newest short pair decides a sign (a translating camera, F
+        # not degenerate): the ground and footing tests need nothing else.
+        self._long = None
+        if observation.long_pair is not None and newest is not None and newest[1].signed is not None:
+            self._long = self._fit_pair(*observation.long_pair, observation.camera_matrix, observation.guessed,
+                                        self.config.window_length - 1)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
-        # (distance, signed, ground, footing) x (track, pair), NaN where a pair did not measure it.
-        tables = np.full((len(PairEvidence._fields), ids.size, len(self._pairs)), np.nan, dtype=np.float32)
+        # (distance, signed, ground, footing) x (track, pair), NaN where a pair did not measure it; the last
+        # column is the long pair's, which gives only the ground and footing tests.
+        tables = np.full((len(PairEvidence._fields), ids.size, len(self._pairs) + 1), np.nan, dtype=np.float32)
         for m, (pair_ids, evidence) in enumerate(self._pairs):
             rows = np.searchsorted(ids, pair_ids)
             for table, values in zip(tables, evidence):
                 if values is not None:
                     table[rows, m] = values
+        if self._long is not None:
+            long_ids, evidence = self._long
+            known = np.isin(long_ids, ids)
+            rows = np.searchsorted(ids, long_ids[known])
+            for table, values in zip(tables[2:], (evidence.ground, evidence.footing)):
+                if values is not None:
+                    table[rows, -1] = values[known]
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:])]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive))
 
@@ -289,11 +314,16 @@ class MotionFrontEnd:
         return ids[counts >= self.config.sticky_windows]
 
     def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, K: np.ndarray,
-                  guessed: bool) -> None:
+                  guessed: bool, frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
+        """(ids, evidence) of the tracks seen in both frames of a pair ``frames`` apart (default: ``gap``; a
+        longer pair skips the planar check, see ``_flagged``)."""
+        config = self.config.track_motion
+        if frames is not None:
+            # A guessed K's rotation limit holds per frame.
+            config = replace(config, guessed_max_rotation_deg=config.guessed_max_rotation_deg / config.gap * frames)
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
-        evidence = pair_evidence(x1[i1], x2[i2], self.config.track_motion, K, guessed)
-        if evidence is not None:
-            self._pairs.append((both, evidence))
+        evidence = pair_evidence(x1[i1], x2[i2], config, K, guessed, planar_check=frames is None)
+        return None if evidence is None else (both, evidence)
 
     def _dense_mask(self, observation: Observation) -> np.ndarray:
         backward, forward = observation.flows
