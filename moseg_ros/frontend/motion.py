@@ -181,8 +181,6 @@ class MotionFrontEnd:
         # One (track ids, PairEvidence) per frame pair (m, m + gap) of the window: each pair is fitted once.
         self._pairs: collections.deque[tuple[np.ndarray, PairEvidence]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
-        # The ground and footing tests' evidence of the newest long pair (window's first frame -> now), or None.
-        self._long: tuple[np.ndarray, PairEvidence] | None = None
         # Living tracks that were ever flagged (sorted ids) and in how many windows.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
@@ -276,10 +274,10 @@ class MotionFrontEnd:
                 self._pairs.append(newest)
         # The long pair is fitted only while the newest short pair decides a sign (a translating camera, F
         # not degenerate): the ground and footing tests need nothing else.
-        self._long = None
+        long = None
         if observation.long_pair is not None and newest is not None and newest[1].signed is not None:
-            self._long = self._fit_pair(*observation.long_pair, observation.camera_matrix, observation.guessed,
-                                        self.config.window_length - 1)
+            long = self._fit_pair(*observation.long_pair, observation.camera_matrix, observation.guessed,
+                                  self.config.window_length - 1)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
@@ -291,8 +289,8 @@ class MotionFrontEnd:
             for table, values in zip(tables, evidence):
                 if values is not None:
                     table[rows, m] = values
-        if self._long is not None:
-            long_ids, evidence = self._long
+        if long is not None:
+            long_ids, evidence = long
             known = np.isin(long_ids, ids)
             rows = np.searchsorted(ids, long_ids[known])
             for table, values in zip(tables[2:], (evidence.ground, evidence.footing)):
