@@ -32,7 +32,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, Hi
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.io.frames import decode_frame, decode_instances
-from moseg_ros.io.image import compressed_size, image_from_array
+from moseg_ros.io.image import declared_size, image_from_array
 from moseg_ros.params import Setting, all_settings, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import Masks, debug_overlay
@@ -148,18 +148,21 @@ class SegmenterNode(Node):
     # Callbacks: the executor thread only enqueues.
     def _on_image(self, msg: Any) -> None:
         now = time.monotonic()
+        evicted = None
         with self._wake:
             self.counters.frames_in += 1
             self._arrivals.append(now)
             if len(self._queue) >= self.settings["queue_size"]:
-                self._overflow(self._queue.popleft()[0])
+                evicted = self._queue.popleft()[0]
             self._queue.append((msg, now))
             self._wake.notify()
+        if evicted is not None:  # published outside the queue's lock, so the worker never waits for it
+            self._overflow(evicted)
 
     def _overflow(self, msg: Any) -> None:
         """The oldest queued frame leaves the queue unprocessed: carry the newest masks to it, or drop it."""
         masks = self._newest_masks
-        if self.settings["overflow"] == "carry" and masks is not None and _size_of(msg) == masks.dynamic.shape:
+        if self.settings["overflow"] == "carry" and masks is not None and declared_size(msg) == masks.dynamic.shape:
             self._publish_masks(msg.header, masks)
             self.counters.carried += 1
             self._warn("carried", "worker is behind: the oldest queued frame got the newest masks")
@@ -308,17 +311,6 @@ def _rate(times: collections.deque[float]) -> float:
     if len(times) < 2 or times[-1] <= times[0]:
         return 0.0
     return (len(times) - 1) / (times[-1] - times[0])
-
-
-def _size_of(msg: Any) -> tuple[int, int] | None:
-    """(H, W) an image message declares (a compressed one's header), None when it cannot be read."""
-    if not hasattr(msg, "format"):
-        return (msg.height, msg.width)
-    try:
-        width, height = compressed_size(np.frombuffer(bytes(msg.data), dtype=np.uint8))
-    except ValueError:
-        return None
-    return (height, width)
 
 
 def _stamp_text(msg: Any) -> str:

@@ -13,6 +13,7 @@ from moseg_ros.io.image import (
     ImageDecodeError,
     array_to_image_fields,
     compressed_to_array,
+    declared_size,
     image_from_array,
     image_to_array,
     to_gray,
@@ -244,3 +245,10 @@ def test_damaged_streams_print_nothing(capfd: pytest.CaptureFixture) -> None:
                 compressed_to_array(SimpleNamespace(format="jpeg", data=truncated))
     captured = capfd.readouterr()
     assert captured.err == "" and captured.out == ""
+
+
+def test_declared_size_reads_headers_without_decoding() -> None:
+    ok, png = cv2.imencode(".png", np.zeros((37, 53), np.uint8))
+    assert declared_size(SimpleNamespace(format="png", data=png.tobytes())) == (37, 53)
+    assert declared_size(SimpleNamespace(height=4, width=9, encoding="mono8", data=b"")) == (4, 9)
+    assert declared_size(SimpleNamespace(format="jpeg", data=b"not a jpeg at all")) is None

@@ -317,11 +317,15 @@ class MotionFrontEnd:
         longer pair skips the planar check, see ``_flagged``)."""
         config = self.config.track_motion
         if frames is not None:
-            # A guessed K's rotation limit holds per frame.
-            config = replace(config, guessed_max_rotation_deg=config.guessed_max_rotation_deg / config.gap * frames)
+            config = replace(config, guessed_max_rotation_deg=self._guessed_rotation_limit(frames))
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
         evidence = pair_evidence(x1[i1], x2[i2], config, K, guessed, planar_check=frames is None)
         return None if evidence is None else (both, evidence)
+
+    def _guessed_rotation_limit(self, frames: int) -> float:
+        """Degrees a pair ``frames`` apart may turn with a guessed K: ``guessed_max_rotation_deg`` holds for the
+        track pairs (``gap`` frames), so the limit per frame is the same for every pair."""
+        return self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap * frames
 
     def _dense_mask(self, observation: Observation) -> np.ndarray:
         backward, forward = observation.flows
@@ -335,9 +339,7 @@ class MotionFrontEnd:
         if evidence.homography is None and self.config.dense_cheir_px > 0:
             # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
-            # The rotation limit holds per frame: the dense pair spans dense_gap frames, the track pairs gap.
-            per_frame = self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap
-            limit = per_frame * self.config.dense_gap if observation.guessed else np.inf
+            limit = self._guessed_rotation_limit(self.config.dense_gap) if observation.guessed else np.inf
             behind = behind_infinity(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                      threshold_px=self.config.dense_cheir_px,
                                      inlier_px=self.config.dense_baseline.ransac_threshold_px,

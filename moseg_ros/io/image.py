@@ -200,6 +200,18 @@ def compressed_size(buf: np.ndarray) -> tuple[int, int]:
         raise ImageDecodeError(f"cannot read the image header: {error}") from None
 
 
+def declared_size(msg: Any) -> tuple[int, int] | None:
+    """(H, W) an Image or CompressedImage message declares (a compressed one's header, pixels not decoded);
+    None when a compressed header cannot be read."""
+    if not hasattr(msg, "format"):
+        return (msg.height, msg.width)
+    try:
+        width, height = compressed_size(_buffer(msg.data))
+    except ImageDecodeError:
+        return None
+    return (height, width)
+
+
 def _pillow_pixels(image: PIL.Image.Image) -> np.ndarray:
     """Pixels of a loaded Pillow image: (H, W) uint8 or uint16 for grey modes, (H, W, 3) uint8 RGB otherwise."""
     if image.mode in ("I", "I;16", "I;16B", "I;16L", "I;16N"):
