@@ -33,6 +33,24 @@ class TestHullMask:
     def test_fewer_points_than_a_group_give_an_empty_mask(self):
         assert not hull_mask(np.zeros((3, 2), np.float32), (10, 10), 5, 4).any()
 
+    SQUARE = np.array([[10, 10], [30, 10], [30, 30], [10, 30]], dtype=np.float32)
+
+    def test_a_hull_crowded_by_static_points_is_not_drawn(self):
+        static = np.array([[15, 15], [20, 20], [25, 25], [15, 25], [25, 15]], dtype=np.float32)
+        assert not hull_mask(self.SQUARE, (50, 50), 25, 4, static, purity=0.5).any()  # 4 of 9 points move
+        assert hull_mask(self.SQUARE, (50, 50), 25, 4, static[:4], purity=0.5).sum() == 21 * 21  # 4 of 8
+        assert hull_mask(self.SQUARE, (50, 50), 25, 4, static, purity=0.0).sum() == 21 * 21
+
+    def test_static_points_outside_the_hull_do_not_count(self):
+        outside = np.array([[40, 40], [5, 45], [45, 5], [2, 2], [35, 20], [20, 35]], dtype=np.float32)
+        assert hull_mask(self.SQUARE, (50, 50), 25, 4, outside, purity=0.5).sum() == 21 * 21
+
+    def test_a_hull_on_the_image_border_is_clipped(self):
+        points = np.array([[40, 40], [50, 40], [50, 50], [40, 50]], dtype=np.float32)  # x, y = 50: outside
+        static = np.array([[45, 45], [49, 49]], dtype=np.float32)
+        mask = hull_mask(points, (50, 50), 25, 4, static, purity=0.5)
+        assert mask[40:, 40:].all() and mask.sum() == 10 * 10
+
 
 class TestMotionFrontEnd:
     def test_the_sliding_block_becomes_one_region_and_the_pan_none(self):

@@ -10,7 +10,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
   A track flagged in ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than
   ``link_fraction`` of the image width are linked, and each group of ``min_group`` or more fills its convex
-  hull.
+  hull, unless the tracks that lived through the whole window unflagged make up more than 1 - ``hull_purity``
+  of the tracks inside it.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
   forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
   texture (``min_texture``: DIS is unreliable on a blank road), and pixels behind infinity by more than
@@ -52,6 +53,11 @@ class MotionFrontEndConfig:
     sticky_windows: int = 2
     link_fraction: float = 0.032
     min_group: int = 4
+    # A moving object carries its tracks along, so tracks that lived through the whole window unflagged are
+    # static evidence: a hull where they outnumber the flagged tracks is scattered noise (water, a crowd,
+    # drifting tracks in foliage), not an object. Young tracks do not count: a moving car keeps gaining new
+    # ones that the test has not flagged yet.
+    hull_purity: float = 0.5
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
@@ -78,14 +84,18 @@ def resized_to_width(gray: np.ndarray, width: int) -> np.ndarray:
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
 
 
-def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int) -> np.ndarray:
-    """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more.
+def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
+              static: np.ndarray | None = None, purity: float = 0.0) -> np.ndarray:
+    """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more
+    whose points are at least ``purity`` of its points plus the ``static`` points inside its hull.
 
     Args:
         points: (N, 2) positions (x, y).
         shape: (H, W) of the mask.
         link_px: largest distance between two linked points.
         min_group: smallest group that makes a region.
+        static: optional (S, 2) positions of points known not to move; a hull they crowd is not drawn.
+        purity: the smallest share of a hull's points that must be ``points`` (0: every group is drawn).
 
     Returns:
         (H, W) bool mask.
@@ -97,9 +107,19 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
     _, group = connected_components(graph, directed=False)
     sizes = np.bincount(group)
+    static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
     for g in np.flatnonzero(sizes >= min_group):
         hull = cv2.convexHull(np.rint(points[group == g]).astype(np.int32))
-        cv2.fillConvexPoly(mask, hull, 1)
+        x0, y0, w, h = cv2.boundingRect(hull)
+        local = np.zeros((h, w), dtype=np.uint8)
+        cv2.fillConvexPoly(local, hull - np.array([x0, y0], dtype=np.int32), 1)
+        if len(static):
+            near = static - [x0, y0]
+            near = near[(near[:, 0] >= 0) & (near[:, 0] < w) & (near[:, 1] >= 0) & (near[:, 1] < h)]
+            if sizes[g] < purity * (sizes[g] + local[near[:, 1], near[:, 0]].sum()):
+                continue
+        view = mask[y0:y0 + h, x0:x0 + w]
+        view |= local[:view.shape[0], :view.shape[1]]
     return mask.astype(bool)
 
 
@@ -247,8 +267,9 @@ class MotionFrontEnd:
             here = np.isin(self._points.ids, flagged)
             self.moving_track_points = self._points.points[here]
             scale = small[1] / self._tracking_shape[1]
+            settled = np.isin(self._points.ids, self._frames[0][0]) & ~here
             moving = hull_mask(self.moving_track_points * scale, small, self.config.link_fraction * small[1],
-                               self.config.min_group)
+                               self.config.min_group, self._points.points[settled] * scale, self.config.hull_purity)
             if refit is not None and refit.dense is not None:
                 moving |= self._carried(refit.dense, refit.index)
             self.moving = moving
