@@ -3,15 +3,17 @@ parallax pass, independent movers fail."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
 
 from conftest import pan_follow_flow
-from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _lowest_below, behind_infinity,
-                                         footing_excess, ground_parallax_ratio, guessed_camera_matrix,
-                                         moving_tracks, pair_evidence, pair_residual, pair_residuals,
-                                         signed_parallax)
+from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity,
+                                         footing_excess, ground_parallax_ratio, ground_slope,
+                                         guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
+                                         pair_residuals, signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -394,18 +396,102 @@ class TestFootingExcess:
         above_car = is_road & (tracks[:, 0, 1] < tracks[is_car, 0, 1].max())
         assert above_car.sum() > 20 and not (excess[above_car] > TrackMotionConfig().footing_px).any()
 
-    def test_the_order_statistic_matches_a_brute_force_one(self):
+    def test_the_column_matches_a_brute_force_one(self):
         rng = np.random.default_rng(5)
         x = rng.uniform(0, 100, (300, 2))
         x[:40, 0] = 50.0  # a column holding many candidates, and ties
-        values = rng.uniform(0, 1, 300)
         candidates, tested = np.arange(0, 300, 2), np.arange(300)
-        lowest = _lowest_below(x, values, candidates, tested, 10.0, 3)
+        index, under = _band_below(x, candidates, tested, 10.0)
         for point in tested:
-            under = candidates[(x[candidates, 1] > x[point, 1]) & (np.abs(x[candidates, 0] - x[point, 0]) < 10.0)]
-            expected = np.sort(values[under])[2] if len(under) >= 3 else np.inf
-            assert lowest[point] == pytest.approx(expected)
-        assert np.isinf(_lowest_below(x, values, candidates[:2], tested, 10.0, 3)).all()
+            expected = candidates[(x[candidates, 1] > x[point, 1]) & (np.abs(x[candidates, 0] - x[point, 0]) < 10.0)]
+            assert sorted(index[point][under[point]].tolist()) == sorted(expected.tolist())
+        assert _band_below(x, candidates[:0], tested, 10.0) is None
+
+
+def _forward_drive(static: np.ndarray, movers: np.ndarray, mover_step: np.ndarray, frames: int, seed: int):
+    """Tracks (N, F, 2) float32 of ``static`` then ``movers`` points (moving ``mover_step`` a frame) seen by a
+    camera driving 1 m a frame down +z, with 0.2 px noise."""
+    rng = np.random.default_rng(seed)
+    points = np.vstack([static, movers])
+    moving = np.r_[np.zeros(len(static)), np.ones(len(movers))][:, None]
+    tracks = np.stack([project(points + moving * t * mover_step, np.array([0.0, 0.0, 1.0 * t]))
+                       for t in range(frames)], axis=1)
+    return (tracks + rng.normal(0, 0.2, tracks.shape)).astype(np.float32)
+
+
+def walls(rng, n: int = 200) -> np.ndarray:
+    """Points on two walls (x = +-6 m), 8-40 m ahead."""
+    return np.column_stack([rng.choice([-6.0, 6.0], n), rng.uniform(-2, 1.5, n), rng.uniform(8, 40, n)])
+
+
+def _in_front_of(points: np.ndarray, near: np.ndarray, margin_px: float = 2.0) -> np.ndarray:
+    """(N,) bool: points hidden at the first frame behind the bounding box of the image of ``near`` points."""
+    camera = np.zeros(3)
+    seen, box = project(points, camera), project(near, camera)
+    (left, top), (right, bottom) = box.min(axis=0) - margin_px, box.max(axis=0) + margin_px
+    return ((seen[:, 0] > left) & (seen[:, 0] < right) & (seen[:, 1] > top) & (seen[:, 1] < bottom)
+            & (points[:, 2] > near[:, 2].min()))
+
+
+def sparse_road_oncoming(seed: int = 0):
+    """An oncoming car (left lane, front face 16 m ahead, 1 m a frame towards the camera) over a road that holds
+    few tracks near it: a handful right under its lower edge (12.5-13.5 m), the rest nearer than 6 m or beyond
+    25 m (where the car does not hide it). Returns tracks (N, 3, 2) and is_car (N,)."""
+    rng = np.random.default_rng(seed)
+    road = np.column_stack([rng.uniform(-6, 6, 600), np.full(600, 1.5),
+                            np.where(rng.random(600) < 0.5, rng.uniform(4.5, 6, 600), rng.uniform(25, 40, 600))])
+    under = np.column_stack([rng.uniform(-3.4, -1.8, 6), np.full(6, 1.5), rng.uniform(12.5, 13.5, 6)])
+    car = np.column_stack([rng.uniform(-3.5, -1.7, 40), rng.uniform(0, 1.5, 40), np.full(40, 16.0)])
+    static = np.vstack([road, under, walls(rng)])
+    static = static[~_in_front_of(static, car)]
+    tracks = _forward_drive(static, car, np.array([0.0, 0.0, -1.0]), 3, seed)
+    return tracks, np.r_[np.zeros(len(static), bool), np.ones(len(car), bool)]
+
+
+def pole_street(seed: int = 0):
+    """A thin pole (0.1 m wide, 3 m tall, 10 m ahead on the right) over a densely tracked road in front of it;
+    of the road behind it, only two tracks right beside its trunk. Returns tracks (N, 3, 2) and is_pole (N,)."""
+    rng = np.random.default_rng(seed)
+    front = np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), rng.uniform(6.5, 10, 900)])
+    behind = np.column_stack([rng.uniform(-6, 6, 300), np.full(300, 1.5), rng.uniform(10, 40, 300)])
+    pole = np.column_stack([rng.uniform(2.95, 3.05, 40), rng.uniform(-1.5, 1.5, 40), np.full(40, 10.0)])
+    column = np.abs(project(behind, np.zeros(3))[:, 0] - project(pole[:1], np.zeros(3))[0, 0]) < 15.0
+    beside = np.array([[0.312 * 12.5, 1.5, 12.5], [0.312 * 13.5, 1.5, 13.5]])  # 6 px right of the trunk
+    static = np.vstack([front, behind[~column], beside, walls(rng)])
+    tracks = _forward_drive(np.vstack([static, pole]), np.zeros((0, 3)), np.zeros(3), 3, seed)
+    return tracks, np.r_[np.zeros(len(static), bool), np.ones(40, bool)]
+
+
+class TestFootingBase:
+    def test_the_oncoming_car_over_a_sparsely_tracked_road_is_caught_only_with_the_road(self):
+        tracks, is_car = sparse_road_oncoming()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        ground = ground_parallax_ratio(tracks[:, 0], parallax)
+        limit = TrackMotionConfig().footing_px
+        without = footing_excess(tracks[:, 0], parallax, ground, TrackMotionConfig(footing_road_tol=0.0))
+        excess = footing_excess(tracks[:, 0], parallax, ground)
+        assert np.mean(without[is_car] > limit) < 0.5
+        assert np.mean(excess[is_car] > limit) > 0.9 and not (excess[~is_car] > limit).any()
+
+    def test_a_thin_pole_is_not_held_to_the_road_seen_behind_it(self):
+        tracks, is_pole = pole_street()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        ground = ground_parallax_ratio(tracks[:, 0], parallax)
+        limit = TrackMotionConfig().footing_px
+        tested = is_pole & (tracks[:, 0, 1] > parallax.epipole_row)
+        excess = footing_excess(tracks[:, 0], parallax, ground)
+        assert tested.sum() > 15 and np.isfinite(excess[tested]).all() and not (excess > limit).any()
+        # Without its own trunk to stand on, the pole is held to the road seen beside the trunk.
+        unrooted = footing_excess(tracks[:, 0], parallax, ground, TrackMotionConfig(footing_same_depth=0.0))
+        assert np.mean(unrooted[tested] > limit) > 0.5
+
+    def test_the_road_slope_is_the_grounds_inverse_depth_per_row(self):
+        tracks, _ = pole_street()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        # The road 1.5 m below a camera of focal 500 px is at depth 750 / row (rows below the epipole); the
+        # pair is 2 m apart and signed parallax measures inverse depth in baselines.
+        assert ground_slope(tracks[:, 0], parallax) == pytest.approx(2.0 / 750, rel=0.15)
+        assert ground_slope(tracks[:, 0], dataclasses.replace(parallax, epipole_row=None)) is None
 
 
 def test_the_oncoming_car_is_caught_by_its_footing_and_missed_by_every_other_test():

@@ -43,7 +43,13 @@ inverse depth with a low order statistic (``footing_support``) of the inverse de
 in its column band (``footing_band`` of the tracks' horizontal extent): a track moves when its parallax
 exceeds ``1 + footing_margin`` times what that footing would give it by more than ``footing_px`` (median over
 the pairs). Tracks the ground test flags (followed cars) are no footing; an order statistic rather than the
-minimum, because KLT tracks right under a moving object's lower edge often follow the object.
+minimum, because KLT tracks right under a moving object's lower edge often follow the object. Where the road
+under an object holds few tracks, that statistic comes from road far nearer the camera, and an oncoming car
+slower than the camera passes under it. The road itself gives a second,
+tighter footing: the object stands at or above the first road track below it (a track within
+``footing_road_tol`` of the ground's parallax), and no higher than its own lowest track (the lowest one under
+it at its inverse depth, within ``footing_same_depth``: beside a thin pole's trunk the road behind the pole is
+visible, and it is no footing), so the fitted ground's inverse depth at the lower of those rows bounds it.
 """
 
 from __future__ import annotations
@@ -86,6 +92,8 @@ class TrackMotionConfig:
     footing_px: float = 1.0
     footing_band: float = 0.01
     footing_support: int = 3
+    footing_road_tol: float = 0.3
+    footing_same_depth: float = 0.25
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:
@@ -226,6 +234,27 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
     return (signed.reshape(h, w) < -threshold_px) & valid
 
 
+def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig()) -> float | None:
+    """The ground's inverse depth (x the pair's baseline) per row below the epipole (see
+    ``ground_parallax_ratio``); None when the camera does not move forward or fewer than three bands hold
+    ``ground_band_tracks`` tracks."""
+    if parallax.epipole_row is None:
+        return None
+    height = x1[:, 1] - parallax.epipole_row
+    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)  # inverse depth x baseline
+    usable = (height > 0) & (parallax.gain > 0) & (depth > 0)
+    if usable.sum() < 3 * config.ground_band_tracks:
+        return None
+    edges = np.linspace(0.0, float(height[usable].max()) + 1e-6, config.ground_bands + 1)
+    band = np.digitize(height, edges) - 1
+    slopes = []
+    for k in range(config.ground_bands):
+        members = usable & (band == k)
+        if members.sum() >= config.ground_band_tracks:
+            slopes.append(np.percentile(depth[members], config.ground_quantile) / (0.5 * (edges[k] + edges[k + 1])))
+    return float(np.percentile(slopes, 25)) if len(slopes) >= 3 else None
+
+
 def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
                           config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
     """(N,) float32 each track's signed parallax over the parallax the ground would have at its pixel.
@@ -245,23 +274,11 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
         Ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``; None when
         the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
     """
-    if parallax.epipole_row is None:
+    slope = ground_slope(x1, parallax, config)
+    if slope is None:
         return None
     height = x1[:, 1] - parallax.epipole_row
-    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)  # inverse depth x baseline
-    usable = (height > 0) & (parallax.gain > 0) & (depth > 0)
-    if usable.sum() < 3 * config.ground_band_tracks:
-        return None
-    edges = np.linspace(0.0, float(height[usable].max()) + 1e-6, config.ground_bands + 1)
-    band = np.digitize(height, edges) - 1
-    slopes = []
-    for k in range(config.ground_bands):
-        members = usable & (band == k)
-        if members.sum() >= config.ground_band_tracks:
-            slopes.append(np.percentile(depth[members], config.ground_quantile) / (0.5 * (edges[k] + edges[k + 1])))
-    if len(slopes) < 3:
-        return None
-    floor = np.percentile(slopes, 25) * np.maximum(height, 0.0) * parallax.gain  # the ground's parallax, px
+    floor = slope * np.maximum(height, 0.0) * parallax.gain  # the ground's parallax, px
     decided = floor >= config.ground_min_px
     ratio = np.full(len(x1), np.nan, dtype=np.float32)
     ratio[decided] = parallax.signed[decided] / floor[decided]
@@ -272,8 +289,12 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
                    config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
     """(N,) float32 pixels by which each track's parallax exceeds what the surface under it allows.
 
-    For a track below the epipole, its footing is the ``footing_support``-th lowest inverse depth (signed /
-    gain) of the tracks below it within ``footing_band`` of the tracks' horizontal extent; the excess is
+    For a track below the epipole, the tracks below it within ``footing_band`` of the tracks' horizontal extent
+    are its column. Its footing is the ``footing_support``-th lowest inverse depth (signed / gain) of the
+    column or, when lower and ``ground`` is given, the ground's inverse depth at the row the track's object
+    stands on: the lower of the column's first road track (a ground ratio within ``footing_road_tol`` of 1) and
+    the object's lowest track (``_footing_base``: the lowest track of the column at the track's own inverse
+    depth, within ``footing_same_depth``). The excess is
     ``signed - (1 + footing_margin) x footing x gain``. A static track's excess is negative; an oncoming car's
     is positive (it closes in faster than the camera drives and looks nearer than the road under it).
 
@@ -295,39 +316,61 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     footing = below_horizon & (parallax.gain > 0) & (depth > 0)
     if ground is not None:
         footing &= ~(ground < config.ground_ratio)
-    band = config.footing_band * float(np.ptp(x1[:, 0]))
-    tested = np.flatnonzero(below_horizon)
-    support = _lowest_below(x1, depth, np.flatnonzero(footing), tested, band, config.footing_support)
-    ahead = support * parallax.gain[tested]  # the parallax the footing's depth gives at the track
     excess = np.full(len(x1), np.nan, dtype=np.float32)
+    tested = np.flatnonzero(below_horizon)
+    column = _band_below(x1, np.flatnonzero(footing), tested, config.footing_band * float(np.ptp(x1[:, 0])))
+    if column is None:
+        return excess
+    index, under = column
+    rows = x1[index, 1]
+    k = config.footing_support
+    support = (np.partition(np.where(under, depth[index], np.inf).astype(np.float32), k - 1, axis=1)[:, k - 1]
+               if under.shape[1] >= k else np.full(len(tested), np.inf, dtype=np.float32))
+    slope = None if ground is None or config.footing_road_tol <= 0 else ground_slope(x1, parallax, config)
+    if slope is not None:
+        road = under & (np.abs(ground[index] - 1.0) <= config.footing_road_tol)
+        base = _footing_base(x1[tested, 1], rows, under, depth[index], depth[tested], config.footing_same_depth)
+        first_road = np.where(road, rows, np.inf).min(axis=1)
+        found = np.isfinite(first_road)
+        stands = np.maximum(first_road[found], base[found])
+        support[found] = np.minimum(support[found], slope * (stands - parallax.epipole_row))
+    ahead = support * parallax.gain[tested]  # the parallax the footing's depth gives at the track
     decided = np.isfinite(ahead) & (ahead >= config.ground_min_px)
     excess[tested[decided]] = (parallax.signed[tested] - (1.0 + config.footing_margin) * ahead)[decided]
     return excess
 
 
-def _lowest_below(x: np.ndarray, values: np.ndarray, candidates: np.ndarray, tested: np.ndarray, band: float,
-                  k: int) -> np.ndarray:
-    """(len(tested),) the k-th lowest ``values`` of the candidates lower in the image than each tested point
-    and within ``band`` of its column (inf when fewer than k).
+def _footing_base(row: np.ndarray, rows: np.ndarray, under: np.ndarray, depths: np.ndarray, depth: np.ndarray,
+                  same_depth: float) -> np.ndarray:
+    """(T,) the lowest row (largest y) of each tested track's object: its own row or that of the lowest track
+    under it (``rows``, ``under``: (T, run) from ``_band_below``) whose inverse depth ``depths`` is within
+    ``same_depth`` of its own ``depth``. A thin pole hides little of the road beside its trunk; the road seen
+    there lies behind it, not under it."""
+    same = under & (np.abs(depths / np.maximum(depth, 1e-12)[:, None] - 1.0) <= same_depth)
+    return np.maximum(np.where(same, rows, -np.inf).max(axis=1), row)
+
+
+def _band_below(x: np.ndarray, candidates: np.ndarray, tested: np.ndarray,
+                band: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The candidates in each tested point's column: (T, run) indices into x and (T, run) bool, True where the
+    candidate is within ``band`` of the tested point's column and lower in the image; None when no band holds
+    one.
 
     The candidates are sorted by column, so each tested point compares only with the run of candidates in its
     band (a (tested, longest run) table instead of (tested, candidates))."""
-    lowest = np.full(len(tested), np.inf, dtype=np.float32)
-    if len(candidates) < k or len(tested) == 0:
-        return lowest
+    if len(candidates) == 0 or len(tested) == 0:
+        return None
     order = candidates[np.argsort(x[candidates, 0], kind="stable")]
     cx = x[order, 0]
     first = np.searchsorted(cx, x[tested, 0] - band, side="right")
     stop = np.searchsorted(cx, x[tested, 0] + band, side="left")
     run = int((stop - first).max())
-    if run < k:
-        return lowest
+    if run < 1:
+        return None
     index = first[:, None] + np.arange(run)
     inside = index < stop[:, None]
     index = order[np.minimum(index, len(order) - 1)]
-    under = inside & (x[index, 1] > x[tested, 1][:, None])
-    table = np.where(under, values[index].astype(np.float32), np.inf)
-    return np.partition(table, k - 1, axis=1)[:, k - 1]
+    return index, inside & (x[index, 1] > x[tested, 1][:, None])
 
 
 class PairEvidence(NamedTuple):
