@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 
 from conftest import pan_follow_flow, textured_frames
+from moseg_ros.core.track_motion import guessed_camera_matrix
 from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, hull_mask
 
 
@@ -109,6 +110,41 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestTextureReach:
+    """The dense residual counts where DIS can see texture within ``texture_reach`` pixels: the smooth body of
+    a mover (its flow comes from its edges), not the middle of a wide blank area."""
+
+    @staticmethod
+    def _refit(reach: int):
+        h, w = 160, 320
+        gray = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (h, w)).astype(np.uint8), (3, 3), 0)
+        backward = np.zeros((h, w, 2), np.float32)
+        backward[..., 0] = 2.0  # the camera pans: every pixel came from 2 px to the right
+        body = np.zeros((h, w), bool)
+        body[40:80, 40:80] = True  # a smooth object moving down 3 px a frame
+        blank = np.zeros((h, w), bool)
+        blank[20:140, 160:300] = True  # a blank wall whose flow DIS extrapolates wrongly
+        for region in (body, blank):
+            gray[region] = 128
+            backward[region] = (0.0, -3.0)
+        config = MotionFrontEndConfig(dense_width=w, dense_cheir_px=0.0, texture_reach=reach)
+        observation = Observation(1, None, None, np.zeros(0, np.int64), guessed_camera_matrix((h, w)), True,
+                                  (backward, -backward), gray, (h, w))
+        return MotionFrontEnd(config).refit(observation).dense, body, blank
+
+    def test_the_smooth_body_is_filled_from_its_edges(self):
+        dense, body, _ = self._refit(12)
+        assert dense[body].mean() > 0.75
+        narrow, _, _ = self._refit(0)
+        assert narrow[body].mean() < 0.3
+
+    def test_the_middle_of_a_wide_blank_area_stays_out(self):
+        dense, _, blank = self._refit(12)
+        middle = np.zeros_like(blank)
+        middle[40:120, 180:280] = True  # farther than the reach from any texture
+        assert not dense[middle].any() and dense[blank & ~middle].mean() > 0.3
 
 
 def far_followed_car(frames: int = 8, seed: int = 0):

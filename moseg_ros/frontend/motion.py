@@ -13,8 +13,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   hull, unless the tracks that lived through the whole window unflagged make up more than 1 - ``hull_purity``
   of the tracks inside it.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
-  forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
-  texture (``min_texture``: DIS is unreliable on a blank road), and pixels behind infinity by more than
+  forward-backward checked; pixels far from the dominant motion (core/baseline.py) within ``texture_reach``
+  pixels of texture (``min_texture``: DIS is unreliable in the middle of a blank road, but the smooth body of
+  an animal or a car takes its flow from its textured edges), and pixels behind infinity by more than
   ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the smooth body of an object the
   camera follows has a flow of about zero, which its few tracks cannot fill).
 
@@ -65,6 +66,7 @@ class MotionFrontEndConfig:
         residual_threshold_px=1.0, residual_noise_factor=5.0))
     min_region_area: int = 80
     min_texture: float = 1e-3
+    texture_reach: int = 12
     close_px: int = 5
     dense_cheir_px: float = 1.0
 
@@ -348,6 +350,15 @@ class MotionFrontEnd:
         track pairs (``gap`` frames), so the limit per frame is the same for every pair."""
         return self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap * frames
 
+    def _near_texture(self, gray: np.ndarray) -> np.ndarray:
+        """(h, w) bool: pixels within ``texture_reach`` of one whose smaller structure-tensor eigenvalue
+        exceeds ``min_texture`` (DIS's patches reach that far)."""
+        textured = (cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture).astype(np.uint8)
+        if self.config.texture_reach > 0:
+            side = 2 * self.config.texture_reach + 1
+            textured = cv2.dilate(textured, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
+        return textured > 0
+
     def _dense_mask(self, observation: Observation) -> np.ndarray:
         backward, forward = observation.flows
         gray = observation.gray
@@ -356,7 +367,7 @@ class MotionFrontEnd:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         if self.config.min_texture > 0:
-            moving &= cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture
+            moving &= self._near_texture(gray)
         if evidence.homography is None and self.config.dense_cheir_px > 0:
             # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
