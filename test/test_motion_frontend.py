@@ -113,22 +113,23 @@ class TestDenseCheirality:
 
 
 class TestTextureReach:
-    """The dense residual counts where DIS can see texture within ``texture_reach`` pixels: the smooth body of
-    a mover (its flow comes from its edges), not the middle of a wide blank area."""
+    """The dense residual counts where DIS can see texture within ``texture_reach`` pixels and the flow is
+    small: the smooth body of a mover (its flow comes from its edges), not the middle of a wide blank area,
+    nor a smooth area moving fast (DIS does not carry a large motion into it)."""
 
     @staticmethod
-    def _refit(reach: int):
+    def _refit(reach: int, body_step: float = 3.0):
         h, w = 160, 320
         gray = cv2.GaussianBlur(np.random.default_rng(0).integers(0, 255, (h, w)).astype(np.uint8), (3, 3), 0)
         backward = np.zeros((h, w, 2), np.float32)
         backward[..., 0] = 2.0  # the camera pans: every pixel came from 2 px to the right
         body = np.zeros((h, w), bool)
-        body[40:80, 40:80] = True  # a smooth object moving down 3 px a frame
+        body[40:80, 40:80] = True  # a smooth object moving down
         blank = np.zeros((h, w), bool)
         blank[20:140, 160:300] = True  # a blank wall whose flow DIS extrapolates wrongly
-        for region in (body, blank):
+        for region, step in ((body, body_step), (blank, 3.0)):
             gray[region] = 128
-            backward[region] = (0.0, -3.0)
+            backward[region] = (0.0, -step)
         config = MotionFrontEndConfig(dense_width=w, dense_cheir_px=0.0, texture_reach=reach)
         observation = Observation(1, None, None, np.zeros(0, np.int64), guessed_camera_matrix((h, w)), True,
                                   (backward, -backward), gray, (h, w))
@@ -145,6 +146,10 @@ class TestTextureReach:
         middle = np.zeros_like(blank)
         middle[40:120, 180:280] = True  # farther than the reach from any texture
         assert not dense[middle].any() and dense[blank & ~middle].mean() > 0.3
+
+    def test_a_smooth_area_moving_fast_is_not_filled(self):
+        fast, body, _ = self._refit(12, body_step=MotionFrontEndConfig().smooth_max_flow + 4.0)
+        assert fast[body].mean() < 0.3
 
 
 def far_followed_car(frames: int = 8, seed: int = 0):

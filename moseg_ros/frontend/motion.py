@@ -13,9 +13,10 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   hull, unless the tracks that lived through the whole window unflagged make up more than 1 - ``hull_purity``
   of the tracks inside it.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
-  forward-backward checked; pixels far from the dominant motion (core/baseline.py) within ``texture_reach``
-  pixels of texture (``min_texture``: DIS is unreliable in the middle of a blank road, but the smooth body of
-  an animal or a car takes its flow from its textured edges), and pixels behind infinity by more than
+  forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
+  texture (``min_texture``), or within ``texture_reach`` pixels of texture where the flow is at most
+  ``smooth_max_flow`` (DIS carries a small motion from textured edges into the smooth body of an animal or a
+  car, but not a large one: the near road of a driving camera), and pixels behind infinity by more than
   ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the smooth body of an object the
   camera follows has a flow of about zero, which its few tracks cannot fill).
 
@@ -67,6 +68,7 @@ class MotionFrontEndConfig:
     min_region_area: int = 80
     min_texture: float = 1e-3
     texture_reach: int = 12
+    smooth_max_flow: float = 8.0
     close_px: int = 5
     dense_cheir_px: float = 1.0
 
@@ -350,14 +352,17 @@ class MotionFrontEnd:
         track pairs (``gap`` frames), so the limit per frame is the same for every pair."""
         return self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap * frames
 
-    def _near_texture(self, gray: np.ndarray) -> np.ndarray:
-        """(h, w) bool: pixels within ``texture_reach`` of one whose smaller structure-tensor eigenvalue
-        exceeds ``min_texture`` (DIS's patches reach that far)."""
+    def _reliable(self, gray: np.ndarray, flow: np.ndarray) -> np.ndarray:
+        """(h, w) bool: pixels whose dense flow the residual test may trust: textured ones (the smaller
+        structure-tensor eigenvalue above ``min_texture``), and smooth ones within ``texture_reach`` of texture
+        whose ``flow`` (h, w, 2) is at most ``smooth_max_flow`` long."""
         textured = (cv2.cornerMinEigenVal(gray, 5, 3) > self.config.min_texture).astype(np.uint8)
-        if self.config.texture_reach > 0:
-            side = 2 * self.config.texture_reach + 1
-            textured = cv2.dilate(textured, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side)))
-        return textured > 0
+        if self.config.texture_reach <= 0:
+            return textured > 0
+        side = 2 * self.config.texture_reach + 1
+        near = cv2.dilate(textured, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (side, side))) > 0
+        slow = np.hypot(flow[..., 0], flow[..., 1]) <= self.config.smooth_max_flow
+        return (textured > 0) | (near & slow)
 
     def _dense_mask(self, observation: Observation) -> np.ndarray:
         backward, forward = observation.flows
@@ -367,7 +372,7 @@ class MotionFrontEnd:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         if self.config.min_texture > 0:
-            moving &= self._near_texture(gray)
+            moving &= self._reliable(gray, backward)
         if evidence.homography is None and self.config.dense_cheir_px > 0:
             # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
