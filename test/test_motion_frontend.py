@@ -79,6 +79,16 @@ class TestMotionFrontEnd:
         assert len(xy) > 10
         assert block_truth(5)[xy[:, 1], xy[:, 0]].mean() > 0.9
 
+    def test_the_long_pair_comes_once_the_window_outgrows_the_short_pairs(self):
+        config = MotionFrontEndConfig(dense=False)
+        front_end = MotionFrontEnd(config)
+        spans = []
+        for frame in textured_frames(10):
+            observation = front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+            spans.append(observation.long_span if observation.long_pair is not None else None)
+        gap, window = config.track_motion.gap, config.window_length
+        assert spans == [None] * (gap + 1) + list(range(gap + 1, window)) + [window - 1] * (10 - window)
+
     def test_reset_forgets_the_stream(self):
         front_end = MotionFrontEnd()
         for frame in textured_frames(4):
@@ -181,7 +191,7 @@ def _refit_stream(points: np.ndarray, K: np.ndarray, long_pairs: bool) -> np.nda
     for t in range(2, len(points)):
         long_pair = (ids, points[0], ids, points[t]) if long_pairs and t == len(points) - 1 else None
         observation = Observation(t, (ids, points[t - 2], ids, points[t]), long_pair, ids, K, False, None,
-                                  np.zeros((240, 640), np.uint8), (240, 640))
+                                  np.zeros((240, 640), np.uint8), (240, 640), t if long_pair else 0)
         flagged = front_end.refit(observation).flagged
     return flagged
 

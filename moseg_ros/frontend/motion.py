@@ -134,14 +134,15 @@ class Observation:
     Attributes:
         index: the frame's number since the last reset.
         pair: (ids, points) of the frames ``gap`` back and now, or None before there are two.
-        long_pair: the same for the window's first frame and now, or None until the window is full (or when
-            it spans no more than ``gap`` frames).
+        long_pair: the same for the window's first frame and now, or None until the window holds more than
+            ``gap`` + 1 frames.
         alive: ids of the tracks living now.
         camera_matrix: (3, 3) K at the tracking size (guessed when ``guessed``).
         guessed: True when K is a guess (no camera_info).
         flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None.
         gray: the frame at the dense size (for the texture gate).
         tracking_shape: (H, W) of the frame as tracked (``camera_matrix``'s size).
+        long_span: frames between the long pair's two frames (0 without one).
     """
 
     index: int
@@ -153,6 +154,7 @@ class Observation:
     flows: tuple[np.ndarray, np.ndarray] | None
     gray: np.ndarray
     tracking_shape: tuple[int, int]
+    long_span: int = 0
 
 
 @dataclass(frozen=True)
@@ -242,14 +244,15 @@ class MotionFrontEnd:
             self._backward.append((self._index, flows[0]))
         gap = self.config.track_motion.gap
         pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None
-        long_pair = None
-        if len(self._frames) == self.config.window_length > gap + 1:
-            long_pair = (*self._frames[0], *self._frames[-1])
+        # The window's longest pair, as soon as it is longer than the short ones: near the focus of expansion
+        # the short pairs' parallax is below their floor, and the first frames of a stream would wait for the
+        # window to fill.
+        long_pair = (*self._frames[0], *self._frames[-1]) if len(self._frames) > gap + 1 else None
         guessed = camera_matrix is None
         K = guessed_camera_matrix(gray.shape) if guessed else camera_matrix
         self._tracking_shape = gray.shape
         return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, guessed, flows,
-                           self._grays[-1], gray.shape)
+                           self._grays[-1], gray.shape, len(self._frames) - 1 if long_pair is not None else 0)
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
@@ -302,7 +305,7 @@ class MotionFrontEnd:
         long = None
         if observation.long_pair is not None and newest is not None and newest[1].signed is not None:
             long = self._fit_pair(*observation.long_pair, observation.camera_matrix, observation.guessed,
-                                  self.config.window_length - 1)
+                                  observation.long_span)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
