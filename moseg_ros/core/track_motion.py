@@ -45,11 +45,11 @@ exceeds ``1 + footing_margin`` times what that footing would give it by more tha
 the pairs). Tracks the ground test flags (followed cars) are no footing; an order statistic rather than the
 minimum, because KLT tracks right under a moving object's lower edge often follow the object. Where the road
 under an object holds few tracks, that statistic comes from road far nearer the camera, and an oncoming car
-slower than the camera passes under it. The road itself gives a second,
-tighter footing: the object stands at or above the first road track below it (a track within
-``footing_road_tol`` of the ground's parallax), and no higher than its own lowest track (the lowest one under
-it at its inverse depth, within ``footing_same_depth``: beside a thin pole's trunk the road behind the pole is
-visible, and it is no footing), so the fitted ground's inverse depth at the lower of those rows bounds it.
+slower than the camera passes under it. The road itself gives a second, tighter footing: the object stands
+at or above the first road track below it (a track within ``footing_road_tol`` of the ground's parallax), and
+no higher than its own lowest track (the lowest one under it at its inverse depth, within
+``footing_same_depth``: beside a thin pole's trunk the road behind the pole is visible, and it is no
+footing), so the fitted ground's inverse depth at the lower of those rows bounds it.
 """
 
 from __future__ import annotations
