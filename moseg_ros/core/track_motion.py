@@ -255,8 +255,8 @@ def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig =
     return float(np.percentile(slopes, 25)) if len(slopes) >= 3 else None
 
 
-def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
-                          config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
+def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
+                          slope: float | None = None) -> np.ndarray | None:
     """(N,) float32 each track's signed parallax over the parallax the ground would have at its pixel.
 
     The ground's inverse depth is taken as ``slope x (row - epipole row)`` below the epipole: in each of
@@ -269,12 +269,14 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
         x1: (N, 2) positions in the pair's earlier frame (where ``parallax`` was measured).
         parallax: the pair's ``signed_parallax``.
         config: the ground settings.
+        slope: the pair's ``ground_slope`` when the caller has it (computed here otherwise).
 
     Returns:
         Ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``; None when
         the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
     """
-    slope = ground_slope(x1, parallax, config)
+    if slope is None:
+        slope = ground_slope(x1, parallax, config)
     if slope is None:
         return None
     height = x1[:, 1] - parallax.epipole_row
@@ -286,7 +288,7 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax,
 
 
 def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
-                   config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray | None:
+                   config: TrackMotionConfig = TrackMotionConfig(), slope: float | None = None) -> np.ndarray | None:
     """(N,) float32 pixels by which each track's parallax exceeds what the surface under it allows.
 
     For a track below the epipole, the tracks below it within ``footing_band`` of the tracks' horizontal extent
@@ -305,6 +307,8 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
             footing (a followed car looks farther than anything behind it).
         config: the footing settings (``ground_min_px``: where the footing's parallax is below it, the track
             is not decided).
+        slope: the pair's ``ground_slope`` when the caller has it (computed here otherwise, when ``ground``
+            is given).
 
     Returns:
         Excesses, NaN where not decided; None when the camera does not move forward.
@@ -326,7 +330,10 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     k = config.footing_support
     support = (np.partition(np.where(under, depth[index], np.inf).astype(np.float32), k - 1, axis=1)[:, k - 1]
                if under.shape[1] >= k else np.full(len(tested), np.inf, dtype=np.float32))
-    slope = None if ground is None or config.footing_road_tol <= 0 else ground_slope(x1, parallax, config)
+    if ground is None or config.footing_road_tol <= 0:
+        slope = None
+    elif slope is None:
+        slope = ground_slope(x1, parallax, config)
     if slope is not None:
         road = under & (np.abs(ground[index] - 1.0) <= config.footing_road_tol)
         base = _footing_base(x1[tested, 1], rows, under, depth[index], depth[tested], config.footing_same_depth)
@@ -423,8 +430,9 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     parallax = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
     if parallax is None:
         return PairEvidence(distance)
-    ground = ground_parallax_ratio(x1, parallax, config)
-    return PairEvidence(distance, parallax.signed, ground, footing_excess(x1, parallax, ground, config))
+    slope = ground_slope(x1, parallax, config)  # once for both tests
+    ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
+    return PairEvidence(distance, parallax.signed, ground, footing_excess(x1, parallax, ground, config, slope))
 
 
 def pair_residual(x1: np.ndarray, x2: np.ndarray,
