@@ -89,6 +89,20 @@ class TestMotionFrontEnd:
         gap, window = config.track_motion.gap, config.window_length
         assert spans == [None] * (gap + 1) + list(range(gap + 1, window)) + [window - 1] * (10 - window)
 
+    def test_a_mover_that_stops_is_let_go_once_its_flags_are_sticky_frames_old(self):
+        def flagged_pixels(sticky_frames: int) -> list[int]:
+            front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, sticky_frames=sticky_frames))
+            counts = []
+            for frame in textured_frames(30, stop=8):
+                front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+                counts.append(int(front_end.moving.sum()))
+            return counts
+
+        default = flagged_pixels(MotionFrontEndConfig().sticky_frames)
+        assert min(default[3:9]) > 3000  # the moving block (188 / 3 x 621 / 8 = 4774 px) is found
+        assert max(default[-6:]) == 0  # and let go after it parks
+        assert min(flagged_pixels(10_000)[-6:]) > 3000  # flags held while the tracks live would keep it
+
     def test_reset_forgets_the_stream(self):
         front_end = MotionFrontEnd()
         for frame in textured_frames(4):

@@ -8,7 +8,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
   The ground and footing tests also get the pair of the window's first and last frames: near the focus of
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
-  A track flagged in ``sticky_windows`` windows stays flagged while it lives. Flagged tracks closer than
+  A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
+  without a flag (not while it lives: a track that slips off a mover onto the background would trail it
+  forever). Flagged tracks closer than
   ``link_fraction`` of the image width are linked, and each group of ``min_group`` or more fills its convex
   hull, unless the tracks that lived through the whole window unflagged make up more than 1 - ``hull_purity``
   of the tracks inside it.
@@ -53,6 +55,7 @@ class MotionFrontEndConfig:
     tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000))
     track_motion: TrackMotionConfig = field(default_factory=TrackMotionConfig)
     sticky_windows: int = 2
+    sticky_frames: int = 8
     link_fraction: float = 0.032
     min_group: int = 4
     # A moving object carries its tracks along, so tracks that lived through the whole window unflagged are
@@ -207,9 +210,10 @@ class MotionFrontEnd:
         # One (track ids, PairEvidence) per frame pair (m, m + gap) of the window: each pair is fitted once.
         self._pairs: collections.deque[tuple[np.ndarray, PairEvidence]] = collections.deque(
             maxlen=self.config.window_length - self.config.track_motion.gap)
-        # Living tracks that were ever flagged (sorted ids) and in how many windows.
+        # Living tracks that were ever flagged (sorted ids), in how many windows, and the last frame flagged.
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
+        self._flag_last = np.zeros(0, dtype=np.int64)
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -325,19 +329,23 @@ class MotionFrontEnd:
                 if values is not None:
                     table[rows, -1] = values[known]
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:])]
-        return np.union1d(flagged, self._count_flags(flagged, observation.alive))
+        return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
 
-    def _count_flags(self, flagged: np.ndarray, alive: np.ndarray) -> np.ndarray:
-        """Count one more window for each living flagged track; returns the ids flagged in enough windows."""
+    def _count_flags(self, flagged: np.ndarray, alive: np.ndarray, index: int) -> np.ndarray:
+        """Count one more window for each living flagged track (flagged at frame ``index``); returns the ids
+        flagged in enough windows whose last flag is at most ``sticky_frames`` old."""
         keep = np.isin(self._flag_ids, alive)
         fresh = np.setdiff1d(flagged[np.isin(flagged, alive)], self._flag_ids)
         ids = np.concatenate([self._flag_ids[keep], fresh])
         counts = np.concatenate([self._flag_counts[keep], np.zeros(fresh.size, dtype=np.int64)])
+        last = np.concatenate([self._flag_last[keep], np.full(fresh.size, index, dtype=np.int64)])
         order = np.argsort(ids)
-        ids, counts = ids[order], counts[order]
-        counts[np.isin(ids, flagged)] += 1
-        self._flag_ids, self._flag_counts = ids, counts
-        return ids[counts >= self.config.sticky_windows]
+        ids, counts, last = ids[order], counts[order], last[order]
+        now = np.isin(ids, flagged)
+        counts[now] += 1
+        last[now] = index
+        self._flag_ids, self._flag_counts, self._flag_last = ids, counts, last
+        return ids[(counts >= self.config.sticky_windows) & (index - last <= self.config.sticky_frames)]
 
     def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, K: np.ndarray,
                   guessed: bool, frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
