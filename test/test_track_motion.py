@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from conftest import pan_follow_flow
-from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity,
+from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity, far_behind,
                                          footing_excess, ground_parallax_ratio, ground_slope,
                                          guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
                                          pair_residuals, signed_parallax)
@@ -167,11 +167,41 @@ class TestCheirality:
         assert evidence is not None and evidence[1] is None  # the homography branch: no translation, no sign
 
 
-def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_give_no_sign():
+def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_sign_only_what_is_far_behind_infinity():
     tracks, _ = street(n_mover=0)
     strict = TrackMotionConfig(guessed_max_rotation_deg=0.0)  # every real pair turns a little
-    assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)[1] is not None
-    assert pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)[1] is None
+    calibrated = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)
+    assert calibrated.signed is not None and np.isfinite(calibrated.signed).all()
+    turned = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)
+    assert np.isnan(turned.signed).all()  # no static track lies behind infinity by half the rotation's motion
+    assert turned.ground is None and turned.footing is None  # no epipole row: no ground or footing test
+    never = TrackMotionConfig(guessed_max_rotation_deg=0.0, turned_min_share=np.inf)
+    assert pair_evidence(tracks[:, 0], tracks[:, 2], never, K, guessed=True).signed is None
+
+
+def test_a_turned_pair_still_signs_the_car_the_camera_pans_after():
+    tracks, car = pan_follow()  # turns 1 degree a frame
+    strict = TrackMotionConfig(guessed_max_rotation_deg=0.5)
+    evidence = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)
+    assert (evidence.signed[car] < -strict.cheir_px).mean() > 0.9
+    assert np.isnan(evidence.signed[~car]).mean() > 0.99
+
+
+class TestFarBehind:
+    C, S = np.cos(0.02), np.sin(0.02)
+    ROTATION = K @ np.array([[C, 0, S], [0, 1, 0], [-S, 0, C]]) @ np.linalg.inv(K)
+
+    def test_shape_and_dtype(self):
+        x1 = np.random.default_rng(0).uniform(0, 300, (7, 2))
+        out = far_behind(x1, np.zeros(7), self.ROTATION, 0.5)
+        assert out.shape == (7,) and out.dtype == bool
+
+    def test_known_values_at_the_principal_point(self):
+        centre = np.array([[K[0, 2], K[1, 2]]])
+        motion = K[0, 0] * np.tan(0.02)  # the rotation moves the principal point f tan(angle) sideways
+        assert far_behind(centre, np.array([-0.6 * motion]), self.ROTATION, 0.5)[0]
+        assert not far_behind(centre, np.array([-0.4 * motion]), self.ROTATION, 0.5)[0]
+        assert not far_behind(centre, np.array([2.0]), self.ROTATION, 0.5)[0]
 
 
 def road(frames: int = 6, seed: int = 0, sideways: float = 0.0):
@@ -322,11 +352,14 @@ class TestBehindInfinity:
         assert behind_infinity(to_previous, np.ones(is_car.shape, bool), _dense_fundamental(to_previous), K_flow,
                                unanimous) is None
 
-    def test_a_pair_that_turns_more_than_allowed_gives_no_mask(self):
+    def test_a_pair_that_turns_more_than_allowed_keeps_only_what_is_far_behind_infinity(self):
         to_previous, is_car, K_flow = pan_follow_flow()  # turns 1 degree
         F, valid = _dense_fundamental(to_previous), np.ones(is_car.shape, bool)
-        assert behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5) is None
-        assert behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=1.5) is not None
+        behind = behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5)
+        assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01  # still: all of the rotation
+        never = TrackMotionConfig(turned_min_share=np.inf)
+        assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=0.5) is None
+        assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
 
 
 def oncoming_street(frames: int = 6, seed: int = 0):

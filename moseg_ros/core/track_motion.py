@@ -19,9 +19,12 @@ The sign of t is voted by F's inliers with |parallax| > ``cheir_decided_px``; a 
 ``cheir_consensus`` agreement, which drops pure rotations and pairs dominated by a mover; 0.8 rather than
 0.9, because a camera that pans after an object keeps it still in the image, and such a mover votes
 "behind infinity" with every track it holds (DAVIS car-roundabout: at 0.9 not one pair was signed). A track
-moves when its median signed parallax is below -``cheir_px``. With a guessed K the rotation is misjudged in a turn and
-static foliage came out 'behind infinity' (KITTI odometry 07, 3-4.5 degrees per pair): pairs turning more
-than ``guessed_max_rotation_deg`` then give no sign. An oncoming car projects exactly like a nearer static
+moves when its median signed parallax is below -``cheir_px``. With a guessed K the rotation is misjudged in a
+turn, by a share of the image motion it gives, and static foliage came out 'behind infinity' (KITTI odometry
+07, 3-4.5 degrees per pair): in pairs turning more than ``guessed_max_rotation_deg`` only tracks behind
+infinity by at least ``turned_min_share`` of the rotation's image motion at them are signed, and the ground
+and footing tests are off. An object the panning camera follows (DAVIS libby: 2 degrees a frame) stays
+still in the image, behind infinity by all of it. An oncoming car projects exactly like a nearer static
 point in every pair and stays invisible to both tests.
 
 A car followed at the camera's own speed, or one pulling away slowly, has parallax near zero: in front of
@@ -80,6 +83,7 @@ class TrackMotionConfig:
     cheir_decided_px: float = 1.0
     cheir_min_votes: int = 20
     guessed_max_rotation_deg: float = 2.0
+    turned_min_share: float = 0.5
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
     ground_ratio: float = 0.3
@@ -122,6 +126,8 @@ class Parallax:
             the optical axis).
         rotation: (3, 3) K R K^-1, the infinite homography.
         translation: (3,) K t, oriented by the vote (``oriented_parallax`` of it is positive for static points).
+        turned: the pair turned more than its limit: ``signed`` holds only the points ``far_behind`` infinity
+            (NaN elsewhere) and ``epipole_row`` is None.
     """
 
     signed: np.ndarray
@@ -129,6 +135,7 @@ class Parallax:
     epipole_row: float | None
     rotation: np.ndarray
     translation: np.ndarray
+    turned: bool = False
 
 
 def oriented_parallax(x1: np.ndarray, x2: np.ndarray, rotation: np.ndarray,
@@ -170,17 +177,20 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
         inliers: (N,) bool RANSAC inliers of F (they vote on the sign).
         K: (3, 3) camera matrix (from camera_info, or ``guessed_camera_matrix``).
         config: the cheirality settings.
-        max_rotation_deg: a pair that turns more is not used (with a guessed K, the infinite homography's
-            error grows with the rotation).
+        max_rotation_deg: a pair that turns more signs only the points behind infinity by at least
+            ``config.turned_min_share`` of the rotation's image motion (``far_behind``; with a guessed K the
+            infinite homography's error grows with the rotation), and none when that share is infinite.
 
     Returns:
-        None when the pair does not decide the sign (too few votes, no consensus, or too much rotation).
-        The translation's sign is the one the votes choose, for ``signed`` and ``epipole_row`` alike.
+        None when the pair does not decide the sign (too few votes, no consensus, or too much rotation with
+        an infinite ``turned_min_share``). The translation's sign is the one the votes choose, for ``signed``
+        and ``epipole_row`` alike.
     """
     R1, R2, t = cv2.decomposeEssentialMat(K.T @ fundamental @ K)
     # Of the two rotations the true one is the small one (the other is turned 180 degrees about the baseline).
     R = R1 if np.trace(R1) >= np.trace(R2) else R2
-    if rotation_degrees(R) > max_rotation_deg:
+    turned = rotation_degrees(R) > max_rotation_deg
+    if turned and not np.isfinite(config.turned_min_share):
         return None
     rotation, b = K @ R @ np.linalg.inv(K), (K @ t).ravel()
     signed, gain = oriented_parallax(x1, x2, rotation, b)
@@ -195,7 +205,30 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     forward = -sign * float(t.ravel()[2])  # t is of unit length
     earlier = np.linalg.solve(rotation, b)  # K R^T t: the epipole in the earlier image, where x1 lies
     epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward else None
-    return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b)
+    signed = sign * signed
+    if turned:
+        signed = np.where(far_behind(x1, signed, rotation, config.turned_min_share), signed, np.nan)
+        epipole_row = None
+    return Parallax(signed.astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b, turned)
+
+
+def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: float) -> np.ndarray:
+    """(N,) bool: points whose parallax lies behind infinity by at least ``share`` of the image motion the
+    rotation alone gives them, |K R K^-1 x1 - x1|.
+
+    With a guessed K the recovered rotation is off by a share of its own image motion, and static points come
+    out behind infinity by about that much; an object the panning camera follows stays still in the image, so
+    it lies behind infinity by all of it.
+
+    Args:
+        x1: (N, 2) points in the earlier image.
+        signed: (N,) their signed parallax (``oriented_parallax``, oriented by the vote).
+        rotation: (3, 3) the infinite homography K R K^-1.
+        share: the least share of the rotation's motion.
+    """
+    rotated = x1 @ rotation[:, :2].T + rotation[:, 2]
+    motion = np.hypot(rotated[:, 0] / rotated[:, 2] - x1[:, 0], rotated[:, 1] / rotated[:, 2] - x1[:, 1])
+    return -signed >= share * motion
 
 
 def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
@@ -231,7 +264,10 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
     if vote is None:
         return None
     signed, _ = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
-    return (signed.reshape(h, w) < -threshold_px) & valid
+    behind = signed < -threshold_px
+    if vote.turned:
+        behind &= far_behind(grid.reshape(-1, 2).astype(np.float64), signed, vote.rotation, config.turned_min_share)
+    return behind.reshape(h, w) & valid
 
 
 def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig()) -> float | None:
