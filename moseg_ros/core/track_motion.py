@@ -265,8 +265,10 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
         return None
     signed, _ = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
     behind = signed < -threshold_px
-    if vote.turned:
-        behind &= far_behind(grid.reshape(-1, 2).astype(np.float64), signed, vote.rotation, config.turned_min_share)
+    if vote.turned:  # tested where behind only: a few pixels of the frame
+        where = np.flatnonzero(behind)
+        behind[where] = far_behind(grid.reshape(-1, 2)[where].astype(np.float64), signed[where], vote.rotation,
+                                   config.turned_min_share)
     return behind.reshape(h, w) & valid
 
 
