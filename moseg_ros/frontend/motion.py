@@ -10,10 +10,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
   A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
-  forever). Flagged tracks closer than
-  ``link_fraction`` of the image width are linked, and each group of ``min_group`` or more fills its convex
-  hull, unless the tracks that lived through the whole window unflagged make up more than 1 - ``hull_purity``
-  of the tracks inside it.
+  forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
+  ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
+  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it.
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
   forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
   texture (``min_texture``), or within ``texture_reach`` pixels of texture where the flow is at most
