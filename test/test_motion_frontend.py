@@ -116,12 +116,12 @@ class TestDenseCheirality:
     """The refit's dense mask holds the body of an object the camera pans after (zero flow: no residual)."""
 
     @staticmethod
-    def _refit(degrees: float, guessed: bool, turned_min_share: float = TrackMotionConfig().turned_min_share):
+    def _refit(degrees: float, guessed: bool, share: float = TrackMotionConfig().guessed_behind_share):
         backward, is_car, K = pan_follow_flow(degrees=degrees)
         forward = -backward  # smooth flows: consistent enough for the forward-backward check
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         config = MotionFrontEndConfig(dense_width=is_car.shape[1],
-                                      track_motion=TrackMotionConfig(turned_min_share=turned_min_share))
+                                      track_motion=TrackMotionConfig(guessed_behind_share=share))
         observation = Observation(1, None, None, np.zeros(0, np.int64), K, guessed, (backward, forward), gray,
                                   is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_car
@@ -133,9 +133,9 @@ class TestDenseCheirality:
     def test_with_a_guessed_camera_matrix_a_pair_turning_more_than_a_degree_keeps_the_followed_body(self):
         dense, is_car = self._refit(2.0, guessed=True)  # still in the image: behind by all of the rotation
         assert dense[is_car].mean() > 0.9 and dense[~is_car].mean() < 0.02
-        dense, is_car = self._refit(2.0, guessed=True, turned_min_share=np.inf)  # such pairs unsigned
+        dense, is_car = self._refit(2.0, guessed=True, share=np.inf)  # such pairs unsigned
         assert dense[is_car].mean() < 0.1
-        dense, is_car = self._refit(2.0, guessed=False, turned_min_share=np.inf)  # camera_info's K: no limit
+        dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
 
 

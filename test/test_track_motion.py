@@ -173,10 +173,37 @@ def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_sign_only_what_is
     calibrated = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)
     assert calibrated.signed is not None and np.isfinite(calibrated.signed).all()
     turned = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)
-    assert np.isnan(turned.signed).all()  # no static track lies behind infinity by half the rotation's motion
+    assert np.isnan(turned.signed).all()  # no static track lies far behind infinity, and no other is signed
     assert turned.ground is None and turned.footing is None  # no epipole row: no ground or footing test
-    never = TrackMotionConfig(guessed_max_rotation_deg=0.0, turned_min_share=np.inf)
+    never = TrackMotionConfig(guessed_max_rotation_deg=0.0, guessed_behind_share=np.inf)
     assert pair_evidence(tracks[:, 0], tracks[:, 2], never, K, guessed=True).signed is None
+
+
+def _at_infinity(n: int = 40, frames: int = 6, seed: int = 1) -> np.ndarray:
+    """Tracks (n, frames, 2) of points at infinity under pan_follow's rotation, with 0.2 px of noise: their
+    parallax is the noise, and about half of them come out just behind infinity."""
+    rng = np.random.default_rng(seed)
+    rays = np.column_stack([rng.uniform(-0.5, 0.5, n), rng.uniform(-0.2, 0.2, n), np.ones(n)])
+    tracks = []
+    for t in range(frames):
+        angle = -np.deg2rad(1.0) * t
+        R = np.array([[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]])
+        seen = rays @ R.T @ K.T
+        tracks.append(seen[:, :2] / seen[:, 2:])
+    return (np.stack(tracks, axis=1) + rng.normal(0, 0.2, (n, frames, 2))).astype(np.float32)
+
+
+def test_with_a_guessed_camera_matrix_only_tracks_far_behind_infinity_are_behind_it():
+    tracks, car = pan_follow()
+    tracks, car = np.concatenate([tracks, _at_infinity()]), np.r_[car, np.zeros(40, bool)]
+    loose = TrackMotionConfig(guessed_max_rotation_deg=10.0)  # a pair within the rotation limit
+    calibrated = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guessed=False)
+    guessed = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guessed=True)
+    ahead = calibrated.signed >= 0
+    assert np.array_equal(guessed.signed[ahead], calibrated.signed[ahead])
+    slightly = ~ahead & ~car  # static tracks that the noise puts just behind infinity: taken as at infinity
+    assert slightly.sum() > 5 and (guessed.signed[slightly] == 0).all()
+    assert np.array_equal(guessed.signed[car], calibrated.signed[car])  # the followed car: all of the rotation
 
 
 def test_a_turned_pair_still_signs_the_car_the_camera_pans_after():
@@ -355,9 +382,9 @@ class TestBehindInfinity:
     def test_a_pair_that_turns_more_than_allowed_keeps_only_what_is_far_behind_infinity(self):
         to_previous, is_car, K_flow = pan_follow_flow()  # turns 1 degree
         F, valid = _dense_fundamental(to_previous), np.ones(is_car.shape, bool)
-        behind = behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5)
+        behind = behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5, guessed=True)
         assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01  # still: all of the rotation
-        never = TrackMotionConfig(turned_min_share=np.inf)
+        never = TrackMotionConfig(guessed_behind_share=np.inf)
         assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=0.5) is None
         assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
 

@@ -19,12 +19,14 @@ The sign of t is voted by F's inliers with |parallax| > ``cheir_decided_px``; a 
 ``cheir_consensus`` agreement, which drops pure rotations and pairs dominated by a mover; 0.8 rather than
 0.9, because a camera that pans after an object keeps it still in the image, and such a mover votes
 "behind infinity" with every track it holds (DAVIS car-roundabout: at 0.9 not one pair was signed). A track
-moves when its median signed parallax is below -``cheir_px``. With a guessed K the rotation is misjudged in a
-turn, by a share of the image motion it gives, and static foliage came out 'behind infinity' (KITTI odometry
-07, 3-4.5 degrees per pair): in pairs turning more than ``guessed_max_rotation_deg`` only tracks behind
-infinity by at least ``turned_min_share`` of the rotation's image motion at them are signed, and the ground
-and footing tests are off. An object the panning camera follows (DAVIS libby: 2 degrees a frame) stays
-still in the image, behind infinity by all of it. An oncoming car projects exactly like a nearer static
+moves when its median signed parallax is below -``cheir_px``. With a guessed K the rotation is misjudged, by
+a share of the image motion it gives (most in a turn), and static foliage came out 'behind infinity' (KITTI
+odometry 07, 3-4.5 degrees per pair): a track is then behind infinity only by at least
+``guessed_behind_share`` of the rotation's image motion at it (one less far behind counts as at infinity),
+and in pairs turning more than
+``guessed_max_rotation_deg`` nothing else is signed and the ground and footing tests are off. An object the
+panning camera follows (DAVIS libby: 2 degrees a frame) stays still in the image, behind infinity by all of
+it. An oncoming car projects exactly like a nearer static
 point in every pair and stays invisible to both tests.
 
 A car followed at the camera's own speed, or one pulling away slowly, has parallax near zero: in front of
@@ -83,7 +85,7 @@ class TrackMotionConfig:
     cheir_decided_px: float = 1.0
     cheir_min_votes: int = 20
     guessed_max_rotation_deg: float = 2.0
-    turned_min_share: float = 0.5
+    guessed_behind_share: float = 0.25
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
     ground_ratio: float = 0.3
@@ -178,19 +180,19 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
         K: (3, 3) camera matrix (from camera_info, or ``guessed_camera_matrix``).
         config: the cheirality settings.
         max_rotation_deg: a pair that turns more signs only the points behind infinity by at least
-            ``config.turned_min_share`` of the rotation's image motion (``far_behind``; with a guessed K the
+            ``config.guessed_behind_share`` of the rotation's image motion (``far_behind``; with a guessed K the
             infinite homography's error grows with the rotation), and none when that share is infinite.
 
     Returns:
         None when the pair does not decide the sign (too few votes, no consensus, or too much rotation with
-        an infinite ``turned_min_share``). The translation's sign is the one the votes choose, for ``signed``
+        an infinite ``guessed_behind_share``). The translation's sign is the one the votes choose, for ``signed``
         and ``epipole_row`` alike.
     """
     R1, R2, t = cv2.decomposeEssentialMat(K.T @ fundamental @ K)
     # Of the two rotations the true one is the small one (the other is turned 180 degrees about the baseline).
     R = R1 if np.trace(R1) >= np.trace(R2) else R2
     turned = rotation_degrees(R) > max_rotation_deg
-    if turned and not np.isfinite(config.turned_min_share):
+    if turned and not np.isfinite(config.guessed_behind_share):
         return None
     rotation, b = K @ R @ np.linalg.inv(K), (K @ t).ravel()
     signed, gain = oriented_parallax(x1, x2, rotation, b)
@@ -207,7 +209,7 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward else None
     signed = sign * signed
     if turned:
-        signed = np.where(far_behind(x1, signed, rotation, config.turned_min_share), signed, np.nan)
+        signed = np.where(far_behind(x1, signed, rotation, config.guessed_behind_share), signed, np.nan)
         epipole_row = None
     return Parallax(signed.astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b, turned)
 
@@ -233,7 +235,8 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
 
 def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
                     config: TrackMotionConfig = TrackMotionConfig(), *, threshold_px: float = 1.0,
-                    step: int = 10, inlier_px: float = 0.5, max_rotation_deg: float = np.inf) -> np.ndarray | None:
+                    step: int = 10, inlier_px: float = 0.5, max_rotation_deg: float = np.inf,
+                    guessed: bool = False) -> np.ndarray | None:
     """(H, W) bool: pixels of a dense flow whose signed parallax is below -``threshold_px`` (the cheirality
     test of ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling
     away, where tracks are few).
@@ -247,6 +250,8 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
         threshold_px: parallax below minus this moves.
         step, inlier_px: the vote uses every ``step``-th pixel within ``inlier_px`` of its epipolar line.
         max_rotation_deg: as in ``signed_parallax``.
+        guessed: K is a guess: a pixel is behind infinity only by at least ``config.guessed_behind_share`` of
+            the rotation's image motion there (``far_behind``).
 
     Returns:
         None when the vote does not decide the translation's sign.
@@ -265,10 +270,10 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
         return None
     signed, _ = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
     behind = signed < -threshold_px
-    if vote.turned:  # tested where behind only: a few pixels of the frame
+    if guessed:  # tested where behind only: a few pixels of the frame
         where = np.flatnonzero(behind)
         behind[where] = far_behind(grid.reshape(-1, 2)[where].astype(np.float64), signed[where], vote.rotation,
-                                   config.turned_min_share)
+                                   config.guessed_behind_share)
     return behind.reshape(h, w) & valid
 
 
@@ -434,7 +439,9 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
                   planar_check: bool = True) -> PairEvidence | None:
     """The evidence of one frame pair's tracks (``PairEvidence``); None when there is no model at all.
 
-    ``guessed``: K is not the camera's, so pairs turning more than ``guessed_max_rotation_deg`` give no sign.
+    ``guessed``: K is not the camera's: a track is behind infinity only by at least ``guessed_behind_share`` of
+    the rotation's image motion at it, and pairs turning more than ``guessed_max_rotation_deg`` sign nothing
+    else (``signed_parallax``).
     ``planar_check``: False skips the homography's test of F's degeneracy (a caller that knows the camera
     translates, from a pair of the same window; the homography fit is the costlier half)."""
     if len(x1) < config.min_tracks:
@@ -470,7 +477,12 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
         return PairEvidence(distance)
     slope = ground_slope(x1, parallax, config)  # once for both tests
     ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
-    return PairEvidence(distance, parallax.signed, ground, footing_excess(x1, parallax, ground, config, slope))
+    signed = parallax.signed
+    if guessed:  # nearer to infinity than the error counts as at it; for the cheirality test only (the ground
+        # test wants a followed car's small negative parallax)
+        far = far_behind(x1, signed, parallax.rotation, config.guessed_behind_share)
+        signed = np.where(np.isnan(signed) | (signed >= 0) | far, signed, 0.0)
+    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope))
 
 
 def pair_residual(x1: np.ndarray, x2: np.ndarray,

@@ -390,7 +390,7 @@ class MotionFrontEnd:
             behind = behind_infinity(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                      threshold_px=self.config.dense_cheir_px,
                                      inlier_px=self.config.dense_baseline.ransac_threshold_px,
-                                     max_rotation_deg=limit)
+                                     max_rotation_deg=limit, guessed=observation.guessed)
             if behind is not None:
                 moving |= behind
         return moving
