@@ -23,11 +23,10 @@ moves when its median signed parallax is below -``cheir_px``. With a guessed K t
 a share of the image motion it gives (most in a turn), and static foliage came out 'behind infinity' (KITTI
 odometry 07, 3-4.5 degrees per pair): a track is then behind infinity only by at least
 ``guessed_behind_share`` of the rotation's image motion at it (one less far behind counts as at infinity),
-and in pairs turning more than
-``guessed_max_rotation_deg`` nothing else is signed and the ground and footing tests are off. An object the
-panning camera follows (DAVIS libby: 2 degrees a frame) stays still in the image, behind infinity by all of
-it. An oncoming car projects exactly like a nearer static
-point in every pair and stays invisible to both tests.
+and in pairs turning more than ``guessed_max_rotation_deg`` nothing else is signed and the ground and footing
+tests are off. An object the panning camera follows (DAVIS libby: 2 degrees a frame) stays still in the
+image, behind infinity by all of it. An oncoming car projects exactly like a nearer static point in every
+pair and stays invisible to both tests.
 
 A car followed at the camera's own speed, or one pulling away slowly, has parallax near zero: in front of
 infinity, but farther than the ground it stands on. Below the horizon no static point can be farther than
@@ -128,8 +127,8 @@ class Parallax:
             the optical axis).
         rotation: (3, 3) K R K^-1, the infinite homography.
         translation: (3,) K t, oriented by the vote (``oriented_parallax`` of it is positive for static points).
-        turned: the pair turned more than its limit: ``signed`` holds only the points ``far_behind`` infinity
-            (NaN elsewhere) and ``epipole_row`` is None.
+        turned: the pair turned more than its limit: ``epipole_row`` is None (no ground or footing test),
+            and the cheirality test takes only the points ``far_behind`` infinity (``guessed_signs``).
     """
 
     signed: np.ndarray
@@ -179,9 +178,9 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
         inliers: (N,) bool RANSAC inliers of F (they vote on the sign).
         K: (3, 3) camera matrix (from camera_info, or ``guessed_camera_matrix``).
         config: the cheirality settings.
-        max_rotation_deg: a pair that turns more signs only the points behind infinity by at least
-            ``config.guessed_behind_share`` of the rotation's image motion (``far_behind``; with a guessed K the
-            infinite homography's error grows with the rotation), and none when that share is infinite.
+        max_rotation_deg: a pair that turns more is ``turned`` (with a guessed K the infinite homography's
+            error grows with the rotation: see ``guessed_signs``), and gives None when
+            ``config.guessed_behind_share`` is infinite.
 
     Returns:
         None when the pair does not decide the sign (too few votes, no consensus, or too much rotation with
@@ -207,11 +206,10 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     forward = -sign * float(t.ravel()[2])  # t is of unit length
     earlier = np.linalg.solve(rotation, b)  # K R^T t: the epipole in the earlier image, where x1 lies
     epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward else None
-    signed = sign * signed
     if turned:
-        signed = np.where(far_behind(x1, signed, rotation, config.guessed_behind_share), signed, np.nan)
         epipole_row = None
-    return Parallax(signed.astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b, turned)
+    return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b,
+                    turned)
 
 
 def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: float) -> np.ndarray:
@@ -231,6 +229,17 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
     rotated = x1 @ rotation[:, :2].T + rotation[:, 2]
     motion = np.hypot(rotated[:, 0] / rotated[:, 2] - x1[:, 0], rotated[:, 1] / rotated[:, 2] - x1[:, 1])
     return -signed >= share * motion
+
+
+def guessed_signs(x1: np.ndarray, parallax: Parallax, share: float) -> np.ndarray:
+    """(N,) the signed parallax the cheirality test takes from a pair measured with a guessed K: a point
+    ``far_behind`` infinity (by ``share`` of the rotation's image motion) keeps its value; one less far behind
+    counts as at infinity (0), and in a ``turned`` pair every other point is undecided (NaN). The ground and
+    footing tests keep ``parallax.signed``: a followed car's small negative parallax is theirs."""
+    far = far_behind(x1, parallax.signed, parallax.rotation, share)
+    if parallax.turned:
+        return np.where(far, parallax.signed, np.nan)
+    return np.where((parallax.signed >= 0) | far, parallax.signed, 0.0)
 
 
 def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
@@ -477,11 +486,7 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
         return PairEvidence(distance)
     slope = ground_slope(x1, parallax, config)  # once for both tests
     ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
-    signed = parallax.signed
-    if guessed:  # nearer to infinity than the error counts as at it; for the cheirality test only (the ground
-        # test wants a followed car's small negative parallax)
-        far = far_behind(x1, signed, parallax.rotation, config.guessed_behind_share)
-        signed = np.where(np.isnan(signed) | (signed >= 0) | far, signed, 0.0)
+    signed = guessed_signs(x1, parallax, config.guessed_behind_share) if guessed else parallax.signed
     return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope))
 
 
