@@ -68,6 +68,9 @@ class PipelineConfig:
                          "thread; a frame's mask never waits for a refit and applies the newest one done), inline "
                          "(every frame waits for its own; deterministic), auto (background in the node, inline in "
                          "the offline tools)", choices=REFIT_MODES)
+    refit_nice: int = setting(10, "moving_objects: niceness added to the background refit's thread, so on a busy "
+                              "CPU the frame path goes first and the refit takes the time left (0: same priority)",
+                              low=0, high=19)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process (0: "
                                   "OpenCV's own choice, the CPUs the process may run on)", low=0, high=1024)
 

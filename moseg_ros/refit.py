@@ -4,11 +4,14 @@ The frame path (decode, track, flow, render) submits what the fit needs from eac
 the newest fit that is done; it never waits for one. The worker fits the newest submission only: a newer
 one replaces a waiting one (the slot holds one, so memory stays bounded), which is what a stream wants when
 fitting is slower than the camera. NumPy and OpenCV release the GIL, so on two cores the fit runs beside
-the frame path.
+the frame path. With ``nice`` the worker thread runs at a lower OS priority than the frame path: on a CPU
+too small for both (one core), frames keep their pace and the fits take the time left between them, so they
+come less often instead of making every frame late.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -29,10 +32,13 @@ class BackgroundRefit(Generic[Observation, Result]):
             caller decides). The traceback would hold the failed fit's frames and their arrays, and a
             caller that raises the error again would tie them into a reference cycle that only a full
             garbage collection frees: the node's memory grew with every failed fit.
+        niceness: the worker thread's OS niceness once it runs (None where threads cannot be reniced).
     """
 
-    def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit") -> None:
+    def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit", nice: int = 0) -> None:
         self._fit = fit
+        self._nice = nice
+        self.niceness: int | None = None
         self._cond = threading.Condition()
         self._fitting = threading.Lock()  # held for each fit, so clear() never interleaves with one
         self._pending: Observation | None = None
@@ -88,7 +94,18 @@ class BackgroundRefit(Generic[Observation, Result]):
             self._cond.notify_all()
         self._thread.join(timeout)
 
+    def _lower_priority(self) -> None:
+        """Add ``nice`` to this thread's niceness (Linux: a thread is a task with a priority of its own)."""
+        try:
+            me = threading.get_native_id()
+            if self._nice > 0:
+                os.setpriority(os.PRIO_PROCESS, me, min(os.getpriority(os.PRIO_PROCESS, me) + self._nice, 19))
+            self.niceness = os.getpriority(os.PRIO_PROCESS, me)
+        except (AttributeError, OSError):  # no per-thread priorities on this OS: the fit keeps the frame path's
+            self.niceness = None
+
     def _run(self) -> None:
+        self._lower_priority()
         while True:
             with self._cond:
                 self._cond.wait_for(lambda: self._pending is not None or self._stopped)

@@ -1,6 +1,7 @@
 """`moseg bench pipeline` and `moseg bench synth` print their numbers (speed targets live here, not in tests)."""
 
 import json
+import time
 
 from moseg_ros.cli import main
 
@@ -63,3 +64,18 @@ def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path,
     assert report["rss_mb_start"] > 10 and report["rss_mb_end"] > 10 and report["cpu_percent"] > 0
     assert report["rss_mb_by_minute"] == [round(report["rss_mb_start"], 1)]  # a 4 s run: its start only
     assert main(["bench", "soak", str(textured_bag), "--set", "nope=1"]) == 2
+
+
+def test_pipeline_bench_paces_frames_at_a_camera_rate(textured_bag, capsys, monkeypatch):
+    import moseg_ros.bench.pipeline as bench
+
+    starts = []
+    process = bench.Pipeline.process
+    monkeypatch.setattr(bench.Pipeline, "process",
+                        lambda self, *a, **k: starts.append(time.perf_counter()) or process(self, *a, **k))
+    assert main(["bench", "pipeline", str(textured_bag), "--frames", "8", "--rate", "20"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["rate_hz"] == 20.0 and result["frames"] == 7
+    # every frame starts no earlier than its time at 20 Hz after the first
+    assert all(t - starts[0] >= i / 20 - 1e-3 for i, t in enumerate(starts))
+    assert main(["bench", "pipeline", str(textured_bag), "--rate", "-1"]) == 2

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import gc
+import os
+import sys
 import threading
 import time
 import weakref
@@ -36,6 +38,23 @@ class TestBackgroundRefit:
             assert worker.wait_idle(5)
             assert worker.latest() == 40 and seen[-1] == 4
             assert worker.replaced >= 1 and len(seen) < 5 and worker.fitted == len(seen)
+        finally:
+            worker.stop()
+
+    @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
+    @pytest.mark.parametrize("nice", [0, 5])
+    def test_the_fit_runs_at_the_niceness_asked_and_the_caller_keeps_its_own(self, nice: int) -> None:
+        base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+        def fit(_: int) -> int:
+            return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+        worker = BackgroundRefit(fit, nice=nice)
+        try:
+            worker.submit(1)
+            assert worker.wait_idle(5)
+            assert worker.latest() == min(base + nice, 19) == worker.niceness
+            assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == base
         finally:
             worker.stop()
 

@@ -6,6 +6,8 @@ decisions the frames applied (the node's ``refit`` auto: background), and the fl
 the same frames: KLT tracking at ``track_width`` plus dense DIS flow both ways at ``working_width`` with
 the method's preset and nothing else, the least any method of this design does per frame. ``ratio`` is the
 pipeline's p95 over the floor's. The node keeps up with a camera when p95 stays under the frame period.
+Frames come back to back, or with ``--rate HZ`` at a camera's pace: then the refit's worker gets the time the
+frame path leaves between frames, as in the node, and the decisions' age says how often it refits.
 """
 
 from __future__ import annotations
@@ -59,23 +61,29 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
 
 def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig(),
                    instances: list[np.ndarray] | None = None,
-                   decode_ms: list[float] | None = None) -> dict[str, Any]:
+                   decode_ms: list[float] | None = None, rate: float = 0.0) -> dict[str, Any]:
     """Run the pipeline over ``frames`` (10 Hz stamps; with an instance map per frame if given), then the floor
     on the same frames; per-frame timing in milliseconds, per stage and against the floor.
 
-    The pipeline runs as in the node (``refit`` auto: background), frames back to back: the frame path's
-    times are what a frame waits for, the refit's are on its worker.
+    The pipeline runs as in the node (``refit`` auto: background), frames back to back, or each at its time
+    at ``rate`` frames a second (a frame that comes due while the one before still runs starts at once): the
+    frame path's times are what a frame waits for, the refit's are on its worker.
 
     Returns:
         frames, width, height, ms_mean, ms_p50, ms_p95, ms_max, frames_per_second, stages ({stage: {p50,
         p95}}), floor_ms_p50, floor_ms_p95, ratio (ms_p95 / floor_ms_p95), refit (background or inline),
-        refits, refit_ms_p50, refit_ms_p95 (each refit's fit and tests), refit_age_mean, refit_age_max.
+        refits, refit_ms_p50, refit_ms_p95 (each refit's fit and tests), refit_age_mean, refit_age_max,
+        rate_hz (0: back to back).
     """
     pipeline = Pipeline(config, live=True)
     maps = instances if instances is not None else [None] * len(frames)
+    period = 1.0 / rate if rate > 0 else 0.0
+    results = []
     try:
-        results = [pipeline.process(frame, i * 100_000_000, labels)
-                   for i, (frame, labels) in enumerate(zip(frames, maps))]
+        start = time.perf_counter()
+        for i, (frame, labels) in enumerate(zip(frames, maps)):
+            time.sleep(max(0.0, start + i * period - time.perf_counter()))
+            results.append(pipeline.process(frame, i * 100_000_000, labels))
     finally:
         pipeline.close()
     ms = np.array([r.seconds for r in results[1:]]) * 1e3  # the first frame only fills the window
@@ -86,7 +94,7 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
         for name, seconds in result.stages.items():
             stages.setdefault(name, []).append(seconds * 1e3)
     floor = floor_ms(frames, config)
-    return {**_refit_numbers(results, pipeline.config.refit),
+    return {**_refit_numbers(results, pipeline.config.refit), "rate_hz": float(rate),
             "frames": len(ms), "width": int(frames[0].shape[1]), "height": int(frames[0].shape[0]),
             "ms_mean": float(ms.mean()), **_percentiles(ms, "ms_"), "ms_max": float(ms.max()),
             "frames_per_second": float(1e3 / ms.mean()),
@@ -120,6 +128,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg bench pipeline`."""
     parser.add_argument("bag", type=Path, nargs="?", help="bag to read frames from (default: synthetic street)")
     parser.add_argument("--frames", type=int, default=30)
+    parser.add_argument("--rate", type=float, default=0.0, metavar="HZ",
+                        help="feed the frames at a camera's rate (default 0: back to back)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the result here")
     add_settings_arguments(parser)  # --method object_level runs on the synthetic street's ground-truth instances
 
@@ -140,11 +150,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     else:
         frames, decode_ms = _bag_frames(args.bag, args.frames)
-    if len(frames) < 3:
-        print(f"moseg bench pipeline: need at least 3 frames, got {len(frames)}")
+    if len(frames) < 3 or args.rate < 0:
+        print(f"moseg bench pipeline: need at least 3 frames and a rate >= 0, got {len(frames)} and {args.rate}")
         return 2
     with threadpool_limits(1):
-        result = bench_pipeline(frames, config, instances, decode_ms)
+        result = bench_pipeline(frames, config, instances, decode_ms, args.rate)
     text = json.dumps({"method": config.method, "flow_preset": config.dis_preset(), **result}, indent=2)
     print(text)
     if args.json:

@@ -50,7 +50,8 @@ class MovingObjects:
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
-        self._worker = BackgroundRefit(self._front_end.refit) if config.refit == "background" else None
+        self._worker = (BackgroundRefit(self._front_end.refit, nice=config.refit_nice)
+                        if config.refit == "background" else None)
         self.reset()
 
     def reset(self) -> None:
