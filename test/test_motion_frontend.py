@@ -103,6 +103,18 @@ class TestMotionFrontEnd:
         assert max(default[-6:]) == 0  # and let go after it parks
         assert min(flagged_pixels(10_000)[-6:]) > 3000  # flags held while the tracks live would keep it
 
+    def test_the_dense_flow_back_to_the_previous_frame_checks_the_tracks(self):
+        def checked(dense_gap: int) -> list[float]:
+            front_end = MotionFrontEnd(MotionFrontEndConfig(dense_gap=dense_gap))
+            shares = []
+            for frame in textured_frames(5):
+                front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+                shares.append(front_end._points.flow_checked)  # the tracker's own count
+            return shares
+
+        assert min(checked(1)[1:]) > 0.5  # the pan's DIS flow confirms most background tracks
+        assert max(checked(2)) == 0.0  # a flow two frames back is no check of one frame's tracking
+
     def test_reset_forgets_the_stream(self):
         front_end = MotionFrontEnd()
         for frame in textured_frames(4):

@@ -113,13 +113,17 @@ def _slow_refit(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
 
 class TestPipelineWithBackgroundRefit:
     def test_a_slow_refit_never_holds_a_frame_back(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        """Refits take 0.3 s; 16 frames still get their own masks at the frame path's pace, from older refits."""
+        """Refits take 0.3 s; 16 frames coming every 50 ms still get their own masks at the camera's pace, from
+        older refits."""
         _slow_refit(monkeypatch, 0.3)
         frames = textured_frames(16)
         pipeline = Pipeline(PipelineConfig(), live=True)
         try:
             start = time.perf_counter()
-            results = [pipeline.process(frame, 1_000 + i * 100_000_000) for i, frame in enumerate(frames)]
+            results = []
+            for i, frame in enumerate(frames):
+                time.sleep(max(0.0, start + 0.05 * i - time.perf_counter()))  # a camera, not back to back
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
             elapsed = time.perf_counter() - start
         finally:
             pipeline.close()
@@ -133,14 +137,16 @@ class TestPipelineWithBackgroundRefit:
     def test_background_finds_the_mover_as_inline_does(self) -> None:
         frames = textured_frames(20)
         inline = Pipeline(PipelineConfig(refit="inline"))
-        background = Pipeline(PipelineConfig(refit="background"))
+        # At the frame path's priority: under a busy machine's other processes a niced worker would lag
+        # (what refit_nice is for), and this test is about what a refit finds, not when.
+        background = Pipeline(PipelineConfig(refit="background", refit_nice=0))
         try:
             masks = {}
             for name, pipeline in (("inline", inline), ("background", background)):
                 results = []
                 for i, frame in enumerate(frames):
                     results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
-                    time.sleep(0.05)  # a 20 Hz camera: the worker keeps up
+                    time.sleep(0.1)  # a 10 Hz camera: the worker keeps up
                 masks[name] = [r.masks.dynamic > 0 for r in results]
                 assert {r.refit_age for r in results[5:]} <= ({0} if name == "inline" else {0, 1, 2})
         finally:

@@ -30,3 +30,51 @@ def test_reset_forgets_every_point():
     tracker.update(cv2.cvtColor(textured_frames(1)[0], cv2.COLOR_RGB2GRAY))
     tracker.reset()
     assert tracker.ids.size == 0 and tracker.points.shape == (0, 2)
+
+
+def _tracked(frames: list[np.ndarray], backward: np.ndarray | None, **settings) -> tuple[PointTracker, list[float]]:
+    tracker = PointTracker(TrackerConfig(max_points=300, **settings))
+    checked = []
+    for i, frame in enumerate(frames):
+        tracker.update(frame, backward if i else None)
+        checked.append(tracker.flow_checked)
+    return tracker, checked
+
+
+class TestDenseBackwardCheck:
+    FRAMES = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in textured_frames(5)]
+    # The pan's backward flow (2 px right per frame), given at half size in half-size pixels.
+    PAN_BACK = np.broadcast_to(np.float32([1.0, 0.0]), (94, 311, 2)).copy()
+
+    def test_a_flow_that_agrees_stands_in_for_the_klt_backward_pass(self):
+        alone, _ = _tracked(self.FRAMES, None)
+        shared, checked = _tracked(self.FRAMES, self.PAN_BACK)
+        assert min(checked[1:]) > 0.7  # the background; the sliding block goes back to KLT
+        assert np.array_equal(shared.ids, alone.ids)
+        assert np.allclose(shared.points, alone.points, atol=1e-4)
+
+    def test_a_flow_that_disagrees_changes_nothing(self):
+        alone, _ = _tracked(self.FRAMES, None)
+        shared, checked = _tracked(self.FRAMES, np.zeros_like(self.PAN_BACK))
+        assert max(checked) == 0.0
+        assert np.array_equal(shared.ids, alone.ids) and np.array_equal(shared.points, alone.points)
+
+    def test_off_when_the_tolerance_is_zero(self):
+        _, checked = _tracked(self.FRAMES, self.PAN_BACK, flow_check_px=0.0)
+        assert max(checked) == 0.0
+
+
+class TestSampled:
+    def test_shape_and_units_of_a_half_size_flow(self):
+        from moseg_ros.frontend.tracks import _sampled
+
+        flow = np.broadcast_to(np.float32([1.0, -2.0]), (50, 100, 2)).copy()
+        values = _sampled(flow, np.float32([[0, 0], [150.5, 60.25], [199, 99]]), (100, 200))
+        assert values.shape == (3, 2) and np.allclose(values, [[2.0, -4.0]] * 3)
+
+    def test_bilinear_between_pixels(self):
+        from moseg_ros.frontend.tracks import _sampled
+
+        flow = np.zeros((10, 10, 2), np.float32)
+        flow[..., 0] = np.arange(10, dtype=np.float32)[None, :]  # u = x
+        assert np.allclose(_sampled(flow, np.float32([[3.25, 4.0]]), (10, 10)), [[3.25, 0.0]])

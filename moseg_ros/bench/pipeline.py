@@ -35,8 +35,9 @@ def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
     """Milliseconds per frame (after the first) of KLT tracking plus DIS flow both ways and nothing else.
 
-    KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``; flow: the
-    DIS preset the method runs, between consecutive frames at ``working_width``.
+    KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, its backward
+    check shared with the dense flow as the front-end does; flow: the DIS preset the method runs, between
+    consecutive frames at ``working_width``.
     """
     from moseg_ros.frontend.flow import DenseFlow
     from moseg_ros.frontend.motion import resized_to_width
@@ -51,10 +52,11 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     ms = []
     for i in range(len(frames)):
         start = time.perf_counter()
-        tracks.update(tracking[i])
+        backward = None
         if i:
-            flow(dense[i], dense[i - 1])
+            backward = flow(dense[i], dense[i - 1])
             flow(dense[i - 1], dense[i])
+        tracks.update(tracking[i], backward)
         ms.append((time.perf_counter() - start) * 1e3)
     return np.array(ms[1:])
 

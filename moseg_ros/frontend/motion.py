@@ -2,7 +2,8 @@
 
 Two kinds of evidence, both residuals of the camera's own (dominant) rigid motion:
 
-- sparse: KLT tracks over a causal window; a track moves when its epipolar distance, a median over the
+- sparse: KLT tracks over a causal window (their backward check shared with the dense flow back to the
+  previous frame, frontend/tracks.py); a track moves when its epipolar distance, a median over the
   window's frame pairs, stands out, when its median signed parallax says it lies "behind infinity"
   (cheirality with camera_info's K or a guessed one), or, for a camera driving forward, when it lies farther
   than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
@@ -230,14 +231,12 @@ class MotionFrontEnd:
         return labels
 
     def observe(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> Observation:
-        """The frame path's part: track into ``gray``, compute the dense flow; returns what the refit needs.
+        """The frame path's part: compute the dense flow, track into ``gray``; returns what the refit needs.
 
         Clears ``stages`` (a new frame)."""
         self.stages.clear()
         self._index += 1
         with self.stages("tracks"):
-            self._points.update(gray)
-            self._frames.append((self._points.ids.copy(), self._points.points.copy()))
             self._grays.append(resized_to_width(gray, self.config.dense_width))
         flows = None
         if self.config.dense and len(self._grays) > self.config.dense_gap:
@@ -245,6 +244,11 @@ class MotionFrontEnd:
                 earlier, now = self._grays[0], self._grays[-1]
                 flows = (self._flow(now, earlier), self._flow(earlier, now))
             self._backward.append((self._index, flows[0]))
+        with self.stages("tracks"):
+            # The dense flow back to the previous frame is the tracks' backward check too (frontend/tracks.py).
+            one_back = flows[0] if flows is not None and self.config.dense_gap == 1 else None
+            self._points.update(gray, one_back)
+            self._frames.append((self._points.ids.copy(), self._points.points.copy()))
         gap = self.config.track_motion.gap
         pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None
         # The window's longest pair, as soon as it is longer than the short ones: near the focus of expansion

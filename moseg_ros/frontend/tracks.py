@@ -1,4 +1,9 @@
-"""Sparse point trajectories: pyramidal Lucas-Kanade with a forward-backward check, reseeded where thin."""
+"""Sparse point trajectories: pyramidal Lucas-Kanade with a forward-backward check, reseeded where thin.
+
+The backward half of the check can come from a dense backward flow the caller computes anyway (the motion
+front-end's DIS flow): a point whose round trip through it lands close to its start is kept without KLT's
+backward pass, and only the others are tracked back by KLT.
+"""
 
 from __future__ import annotations
 
@@ -22,6 +27,10 @@ class TrackerConfig:
     # cuts a third of the tracking time and moves the tracks by 0.03 px (p95), far below the 1 px
     # forward-backward and RANSAC thresholds.
     stop_px: float = 0.1
+    # With a dense backward flow, a point whose round trip through it lands within this of its start needs
+    # no KLT backward pass. Half of fb_max_px: the dense flow is coarser than KLT, so only a clear agreement
+    # stands in for KLT's own check (at fb_max_px, tracks on moving objects' edges slipped through).
+    flow_check_px: float = 0.5
 
 
 class PointTracker:
@@ -30,6 +39,10 @@ class PointTracker:
     A point dies when KLT fails, when tracking it back lands more than ``fb_max_px`` from where it started
     (Kalal et al. 2010's forward-backward error), or when it leaves the image. New corners are seeded away
     from the living points whenever fewer than ``max_points`` remain.
+
+    Attributes:
+        flow_checked: share of the last update's tracked points that the dense backward flow confirmed (0
+            without one).
     """
 
     def __init__(self, config: TrackerConfig = TrackerConfig()) -> None:
@@ -44,24 +57,49 @@ class PointTracker:
         self.points = np.zeros((0, 2), dtype=np.float32)
         self._previous: np.ndarray | None = None
         self._next_id = 0
+        self.flow_checked = 0.0
 
-    def update(self, gray: np.ndarray) -> None:
-        """Track the living points into ``gray`` ((H, W) uint8), then seed new ones."""
+    def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None) -> None:
+        """Track the living points into ``gray`` ((H, W) uint8), then seed new ones.
+
+        ``backward_flow``: optional (h, w, 2) flow from ``gray`` to the previous frame, at any size of the same
+        aspect (its vectors in its own pixels); the points it brings back near their start skip KLT's backward
+        pass."""
+        self.flow_checked = 0.0
         if self._previous is not None and len(self.points):
-            self._track(self._previous, gray)
+            self._track(self._previous, gray, backward_flow)
         self._seed(gray)
         self._previous = gray
 
-    def _track(self, previous: np.ndarray, gray: np.ndarray) -> None:
+    def _track(self, previous: np.ndarray, gray: np.ndarray, backward_flow: np.ndarray | None) -> None:
         start = self.points.reshape(-1, 1, 2)
         moved, ok, _ = cv2.calcOpticalFlowPyrLK(previous, gray, start, None, **self._lk)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gray, previous, moved, None, **self._lk)
-        moved, back = moved.reshape(-1, 2), back.reshape(-1, 2)
+        moved = moved.reshape(-1, 2)
+        back, ok_back = self._tracked_back(previous, gray, moved, backward_flow)
         h, w = gray.shape
-        keep = (ok.ravel() == 1) & (ok_back.ravel() == 1)
+        keep = (ok.ravel() == 1) & ok_back
         keep &= np.hypot(*(back - self.points).T) < self.config.fb_max_px
         keep &= (moved[:, 0] >= 0) & (moved[:, 0] <= w - 1) & (moved[:, 1] >= 0) & (moved[:, 1] <= h - 1)
         self.ids, self.points = self.ids[keep], moved[keep]
+
+    def _tracked_back(self, previous: np.ndarray, gray: np.ndarray, moved: np.ndarray,
+                      backward_flow: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 2) where each moved point lands back in ``previous`` and (N,) bool whether that is known: from
+        the dense backward flow where it agrees with the start within ``flow_check_px``, from KLT elsewhere."""
+        back = np.empty_like(moved)
+        ok_back = np.zeros(len(moved), dtype=bool)
+        redo = np.arange(len(moved))
+        if backward_flow is not None and self.config.flow_check_px > 0:
+            back = moved + _sampled(backward_flow, moved, gray.shape)
+            agrees = np.hypot(*(back - self.points).T) < self.config.flow_check_px
+            ok_back[agrees] = True
+            redo = np.flatnonzero(~agrees)
+            self.flow_checked = float(agrees.mean())
+        if len(redo):
+            klt, ok, _ = cv2.calcOpticalFlowPyrLK(gray, previous, moved[redo].reshape(-1, 1, 2), None, **self._lk)
+            back[redo] = klt.reshape(-1, 2)
+            ok_back[redo] = ok.ravel() == 1
+        return back, ok_back
 
     def _seed(self, gray: np.ndarray) -> None:
         wanted = self.config.max_points - len(self.points)
@@ -80,3 +118,15 @@ class PointTracker:
         self.ids = np.concatenate([self.ids, np.arange(self._next_id, self._next_id + len(corners))])
         self.points = np.concatenate([self.points, corners])
         self._next_id += len(corners)
+
+
+def _sampled(flow: np.ndarray, points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(N, 2) ``flow`` ((h, w, 2), in its own pixels) bilinearly sampled at ``points`` of an image of ``shape``
+    (H, W), in that image's pixels."""
+    sy, sx = flow.shape[0] / shape[0], flow.shape[1] / shape[1]
+    # cv2.remap takes its sample positions as (1, N) maps: one bilinear gather for all points.
+    xs = (points[:, 0] * sx).astype(np.float32)[None]
+    ys = (points[:, 1] * sy).astype(np.float32)[None]
+    u = cv2.remap(flow[..., 0], xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+    v = cv2.remap(flow[..., 1], xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0]
+    return np.stack([u / sx, v / sy], axis=1)
