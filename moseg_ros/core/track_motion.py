@@ -205,9 +205,7 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
     # X2 = R X1 + t: a camera driving forward moves the points towards it, so t points backwards.
     forward = -sign * float(t.ravel()[2])  # t is of unit length
     earlier = np.linalg.solve(rotation, b)  # K R^T t: the epipole in the earlier image, where x1 lies
-    epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward else None
-    if turned:
-        epipole_row = None
+    epipole_row = float(earlier[1] / earlier[2]) if forward >= config.ground_min_forward and not turned else None
     return Parallax((sign * signed).astype(np.float32), gain.astype(np.float32), epipole_row, rotation, sign * b,
                     turned)
 
