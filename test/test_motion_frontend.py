@@ -77,7 +77,9 @@ class TestMotionFrontEnd:
             front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
         xy = np.rint(front_end.moving_track_points).astype(int)
         assert len(xy) > 10
-        assert block_truth(5)[xy[:, 1], xy[:, 0]].mean() > 0.9
+        # A corner on the block's outline is the block's too: its KLT window holds the block's texture.
+        outline = cv2.dilate(block_truth(5).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+        assert outline[xy[:, 1], xy[:, 0]].mean() > 0.9
 
     def test_the_long_pair_comes_once_the_window_outgrows_the_short_pairs(self):
         config = MotionFrontEndConfig(dense=False)
