@@ -110,7 +110,7 @@ class FrameResult:
         reason: why, for reset and failed.
         refit_age: frames between this frame and the refit whose decision it got (0: its own; None: none).
         refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
-        stages: seconds per stage of this frame: prepare (grey, resize), the method's own stages (for
+        stages: seconds per stage of this frame: prepare (grey, instances resized), the method's own stages (for
             moving_objects: tracks, fit, flow, dense_fit, regions and method_other; "decision" for methods that
             report none), render.
     """
@@ -232,10 +232,9 @@ class Pipeline:
                      camera_matrix: np.ndarray | None) -> FrameInput:
         full = to_gray(image, "mono8" if image.ndim == 2 else "rgb8")
         h, w = self._working_size(*full.shape)
-        gray = cv2.resize(full, (w, h), interpolation=cv2.INTER_AREA) if (h, w) != full.shape else full
         if instances is not None:
             instances = cv2.resize(instances.astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
-        return FrameInput(gray=gray, full=full, instances=instances, camera_matrix=camera_matrix)
+        return FrameInput(full, (h, w), instances, camera_matrix)
 
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
         masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)

@@ -22,12 +22,30 @@ def test_registry_names_match_and_the_default_needs_no_instances():
 def test_every_method_steps_through_a_stream_and_resets(name):
     method = METHODS[name](PipelineConfig(method=name))
     frames = [f[..., 0].copy() for f in textured_frames(3)]
-    decisions = [method.step(FrameInput(gray=f, full=f)) for f in frames]
+    decisions = [method.step(FrameInput(f, f.shape)) for f in frames]
     assert all(isinstance(d, Decision) for d in decisions)
     assert decisions[0].status is Status.WARMUP
     assert all(d.labels.shape == frames[0].shape for d in decisions)
     method.reset()
-    assert method.step(FrameInput(gray=frames[0], full=frames[0])).status is Status.WARMUP
+    assert method.step(FrameInput(frames[0], frames[0].shape)).status is Status.WARMUP
+
+
+class TestFrameInput:
+    def test_gray_is_the_frame_itself_at_the_working_size(self):
+        full = textured_frames(1)[0][..., 0].copy()
+        assert FrameInput(full, full.shape).gray is full
+
+    def test_gray_is_the_area_resized_frame_below_it(self):
+        full = np.kron(np.arange(12, dtype=np.uint8).reshape(3, 4) * 10, np.ones((2, 2), np.uint8))
+        gray = FrameInput(full, (3, 4)).gray
+        assert gray.shape == (3, 4) and np.array_equal(gray, np.arange(12).reshape(3, 4) * 10)
+
+    def test_the_default_method_never_resizes_to_the_working_size(self):
+        method = METHODS[DEFAULT_METHOD](PipelineConfig())
+        frames = [FrameInput(f[..., 0].copy(), (94, 310)) for f in textured_frames(3)]
+        for frame in frames:
+            method.step(frame)
+        assert all("gray" not in vars(frame) for frame in frames)  # cached_property: never computed
 
 
 def test_the_default_method_takes_upstream_instances_as_its_objects():

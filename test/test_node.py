@@ -391,3 +391,46 @@ def test_replay_without_a_node_times_out_with_a_clear_error(textured_bag, ros_do
         capture_output=True, text=True, timeout=60, env=loopback_env(ros_domain))
     assert result.returncode == 2, result.stderr
     assert "moseg replay: error: timed out after 2 s waiting for a segmenter" in result.stderr
+
+
+def test_a_mask_topic_is_built_only_while_someone_subscribes(ros_domain, monkeypatch):
+    import moseg_ros.node as node_module
+    from moseg_ros.render import render_masks
+    from std_msgs.msg import Header
+
+    for key, value in loopback_env(ros_domain).items():
+        monkeypatch.setenv(key, value)
+    built: list[str] = []
+
+    def counted(msg_cls, array, encoding, header):
+        built.append(encoding)
+        return image_from_array(msg_cls, array, encoding, header)
+
+    monkeypatch.setattr(node_module, "image_from_array", counted)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = node_module.SegmenterNode(context=context)
+    listener = rclpy.create_node("listener", context=context)
+    executor = rclpy.executors.SingleThreadedExecutor(context=context)
+    executor.add_node(listener)
+    masks = render_masks(np.ones((8, 8), np.int32), np.array([1], np.int32), (8, 8))
+    try:
+        node._publish_masks(Header(frame_id="camera"), masks)
+        assert built == []  # nobody listens: no message built
+        received: list[Image] = []
+        listener.create_subscription(Image, "/segmenter/static_mask", received.append, RELIABLE)
+        deadline = time.monotonic() + 20.0
+        while node.pub_static.get_subscription_count() == 0 and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        node._publish_masks(Header(frame_id="camera"), masks)
+        assert built == ["mono8"]  # the static mask only
+        while not received and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        assert [m.header.frame_id for m in received] == ["camera"]
+        assert bytes(received[0].data) == bytes(8 * 8)  # static polarity: 0 where the instance moves
+    finally:
+        executor.shutdown()
+        node.stop()
+        listener.destroy_node()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import enum
+import functools
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar, Protocol
 
+import cv2
 import numpy as np
 
 if TYPE_CHECKING:
@@ -29,16 +31,25 @@ class FrameInput:
     """One frame as a method sees it.
 
     Attributes:
-        gray: (h, w) uint8 frame at the working resolution.
         full: (H, W) uint8 frame at the input resolution (for methods that track at their own resolution).
+        working_size: (h, w) of the working resolution.
         instances: (h, w) int32 upstream instance ids at the working resolution, or None.
         camera_matrix: (3, 3) K at the input resolution (from camera_info), or None when uncalibrated.
     """
 
-    gray: np.ndarray
     full: np.ndarray
+    working_size: tuple[int, int]
     instances: np.ndarray | None = None
     camera_matrix: np.ndarray | None = None
+
+    @functools.cached_property
+    def gray(self) -> np.ndarray:
+        """(h, w) uint8 frame at the working resolution, resized (INTER_AREA) on first use: a method that works
+        at its own resolutions (moving_objects) never pays for it."""
+        h, w = self.working_size
+        if (h, w) == self.full.shape:
+            return self.full
+        return cv2.resize(self.full, (w, h), interpolation=cv2.INTER_AREA)
 
 
 @dataclass
