@@ -4,6 +4,7 @@ parallax pass, independent movers fail."""
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import cv2
 import numpy as np
@@ -13,7 +14,7 @@ from conftest import pan_follow_flow
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity, far_behind,
                                          footing_excess, ground_parallax_ratio, ground_slope,
                                          guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
-                                         pair_residuals, signed_parallax)
+                                         pair_residuals, row_medians, signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -75,6 +76,28 @@ class TestPairResiduals:
         assert residuals.shape == (tracks.shape[0], 4)
         assert np.isnan(residuals[0, 1:]).all() and not np.isnan(residuals[0, 0])
         assert not np.isnan(residuals[1:]).any()
+
+
+class TestRowMedians:
+    def test_known_values_ignore_nan(self):
+        values = np.array([[3.0, 1.0, 2.0], [4.0, np.nan, 1.0], [np.nan, np.nan, 5.0], [np.nan] * 3])
+        np.testing.assert_array_equal(row_medians(values), [2.0, 2.5, 5.0, np.nan])
+
+    def test_matches_numpy_nanmedian(self):
+        rng = np.random.default_rng(0)
+        values = rng.normal(size=(500, 7)).astype(np.float32)
+        values[rng.random(values.shape) < 0.4] = np.nan
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # numpy's all-NaN-slice warning
+            expected = np.nanmedian(values, axis=1)
+        result = row_medians(values)
+        assert result.dtype == np.float32 and result.shape == (500,)
+        np.testing.assert_array_equal(result, expected)
+
+    @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
+    def test_empty_rows_or_columns(self, shape):
+        result = row_medians(np.zeros(shape, dtype=np.float32))
+        assert result.shape == (shape[0],) and np.isnan(result).all()
 
 
 class TestMovingTracks:
