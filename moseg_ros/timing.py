@@ -1,4 +1,4 @@
-"""Wall time per named stage of one frame, for the benchmarks and the node's diagnostics."""
+"""Wall time per named stage of one frame, for the benchmarks and the node's diagnostics; pacing at a camera's rate."""
 
 from __future__ import annotations
 
@@ -27,3 +27,11 @@ class Stages:
             yield
         finally:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+
+def sleep_until(moment: float) -> None:
+    """Sleep until ``time.monotonic()`` reaches ``moment``; return at once when it already has (a frame that
+    comes due while the one before still runs starts late, not skipped)."""
+    delay = moment - time.monotonic()
+    if delay > 0:
+        time.sleep(delay)

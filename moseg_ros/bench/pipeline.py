@@ -26,6 +26,7 @@ from moseg_ros.io.frames import decode_frame
 from moseg_ros.io.image import to_gray
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.timing import sleep_until
 
 
 def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
@@ -82,9 +83,9 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
     period = 1.0 / rate if rate > 0 else 0.0
     results = []
     try:
-        start = time.perf_counter()
+        start = time.monotonic()
         for i, (frame, labels) in enumerate(zip(frames, maps)):
-            time.sleep(max(0.0, start + i * period - time.perf_counter()))
+            sleep_until(start + i * period)
             results.append(pipeline.process(frame, i * 100_000_000, labels))
     finally:
         pipeline.close()

@@ -25,6 +25,7 @@ import numpy as np
 
 from moseg_ros.io.bags import list_topics
 from moseg_ros.params import all_settings
+from moseg_ros.timing import sleep_until
 from moseg_ros.tools.demo import start_segmenter, stop_segmenter
 from moseg_ros.tools.dds import use_loopback
 from moseg_ros.tools.replay import camera_topics, rclpy_messages, wait_until
@@ -155,9 +156,7 @@ def _publish_loop(images: list[Any], info: Any | None, publisher: Any, info_publ
     stamp0 = time.time_ns()
     next_sample = start + 1.0
     for k in range(max(1, round(rate * seconds))):
-        delay = start + k * period - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+        sleep_until(start + k * period)
         msg = images[k % len(images)]
         stamp = stamp0 + round(k * period * 1e9)
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, list_topics, pick_image_topic
+from moseg_ros.timing import sleep_until
 from moseg_ros.tools.dds import use_loopback
 
 OUTPUTS = {
@@ -244,9 +245,7 @@ def _publish_all(messages: Iterator[tuple[str, int, Any]], publishers: dict[str,
     start = time.monotonic()
     for name, log_time, msg in messages:
         first_log = log_time if first_log is None else first_log
-        delay = start + (log_time - first_log) / 1e9 / rate - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+        sleep_until(start + (log_time - first_log) / 1e9 / rate)
         publishers[name].publish(msg)
         with recorder.lock:
             writer.write_serialized(name, topics[name], serialize_message(msg), time.time_ns())
