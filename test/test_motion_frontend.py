@@ -7,7 +7,7 @@ import numpy as np
 
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, hull_mask
+from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, hull_mask, linked_groups
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -15,6 +15,18 @@ def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3)
     y = height // 6 + speed * index
     truth[y:y + height // 3, width // 4:width // 4 + width // 8] = True
     return truth
+
+
+class TestLinkedGroups:
+    def test_groups_of_linked_points_and_minus_one_for_small_ones(self):
+        square = np.array([[0, 0], [8, 0], [8, 8], [0, 8]], dtype=np.float32)
+        group = linked_groups(np.vstack([square, square + 60, [[100, 10], [104, 12]]]), 12, 4)
+        assert group.shape == (10,) and group.dtype == np.int64
+        assert len(set(group[:4])) == 1 and len(set(group[4:8])) == 1 and group[0] != group[4]
+        assert (group[:8] >= 0).all() and (group[8:] == -1).all()
+
+    def test_fewer_points_than_a_group(self):
+        assert (linked_groups(np.zeros((3, 2), np.float32), 5, 4) == -1).all()
 
 
 class TestHullMask:

@@ -39,6 +39,7 @@ from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
 from moseg_ros.core.flow_field import pixel_grid
+from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, behind_infinity, guessed_camera_matrix,
                                          moving_tracks, pair_evidence)
 from moseg_ros.frontend.flow import DenseFlow
@@ -76,6 +77,9 @@ class MotionFrontEndConfig:
     smooth_max_flow: float = 8.0
     close_px: int = 5
     dense_cheir_px: float = 1.0
+    # The flow view around each hull (core/object_flow.py): grows smooth bodies, trims swallowed background.
+    # None: hulls as drawn.
+    object_flow: ObjectFlowConfig | None = field(default_factory=ObjectFlowConfig)
 
 
 def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:
@@ -91,6 +95,17 @@ def resized_to_width(gray: np.ndarray, width: int) -> np.ndarray:
         return gray
     size = (max(32, round(gray.shape[1] * scale)), max(32, round(gray.shape[0] * scale)))
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
+
+
+def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndarray:
+    """(N,) group of each of the (N, 2) ``points`` when points closer than ``link_px`` are linked; -1 for the
+    points of groups smaller than ``min_group``."""
+    if len(points) < min_group:
+        return np.full(len(points), -1, dtype=np.int64)
+    pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    _, group = connected_components(graph, directed=False)
+    return np.where(np.bincount(group)[group] >= min_group, group, -1).astype(np.int64)
 
 
 def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
@@ -110,12 +125,8 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         (H, W) bool mask.
     """
     mask = np.zeros(shape, dtype=np.uint8)
-    if len(points) < min_group:
-        return mask.astype(bool)
-    pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, group = connected_components(graph, directed=False)
-    sizes = np.bincount(group)
+    group = linked_groups(points, link_px, min_group)
+    sizes = np.bincount(group[group >= 0]) if len(group) else np.zeros(0, dtype=np.int64)
     static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
     for g in np.flatnonzero(sizes >= min_group):
         hull = cv2.convexHull(np.rint(points[group == g]).astype(np.int32))
@@ -284,12 +295,32 @@ class MotionFrontEnd:
             self.moving_track_points = self._points.points[here]
             scale = small[1] / self._tracking_shape[1]
             settled = np.isin(self._points.ids, self._frames[0][0]) & ~here
-            moving = hull_mask(self.moving_track_points * scale, small, self.config.link_fraction * small[1],
-                               self.config.min_group, self._points.points[settled] * scale, self.config.hull_purity)
+            link_px = self.config.link_fraction * small[1]
+            moving = hull_mask(self.moving_track_points * scale, small, link_px, self.config.min_group,
+                               self._points.points[settled] * scale, self.config.hull_purity)
+            if self.config.object_flow is not None:
+                moving = self._refined(moving, here, scale, link_px)
             if refit is not None and refit.dense is not None:
                 moving |= self._carried(refit.dense, refit.index)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
+
+    def _refined(self, moving: np.ndarray, here: np.ndarray, scale: float, link_px: float) -> np.ndarray:
+        """``moving`` grown and trimmed by the flow view around each group of the tracks ``here`` (the moving
+        ones), from the tracks' and the dense flow's motion back over ``dense_gap`` frames; unchanged without
+        this frame's dense flow."""
+        gap = self.config.dense_gap
+        if not self._backward or self._backward[-1][0] != self._index or len(self._frames) <= gap or not here.any():
+            return moving
+        ids, points = self._points.ids, self._points.points
+        before_ids, before = self._frames[-1 - gap]
+        _, now, then = np.intersect1d(ids, before_ids, assume_unique=True, return_indices=True)
+        xy = points[now] * scale
+        group = np.full(len(now), -1, dtype=np.int64)
+        moved = here[now]
+        group[moved] = linked_groups(xy[moved], link_px, self.config.min_group)
+        return refine_by_flow(moving, self._backward[-1][1], xy, (before[then] - points[now]) * scale, group,
+                              link_px, self.config.object_flow)
 
     def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
         """``mask`` of frame ``index`` warped to the current frame along the backward flows since."""
