@@ -13,7 +13,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
   ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
-  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it.
+  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it. The flow view then grows each hull
+  over the pixels whose dense flow follows the group's own flow model, and trims what follows the
+  background's around it (``object_flow``, core/object_flow.py).
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back,
   forward-backward checked; pixels far from the dominant motion (core/baseline.py) where the image has
   texture (``min_texture``), or within ``texture_reach`` pixels of texture where the flow is at most
@@ -126,7 +128,7 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
     """
     mask = np.zeros(shape, dtype=np.uint8)
     group = linked_groups(points, link_px, min_group)
-    sizes = np.bincount(group[group >= 0]) if len(group) else np.zeros(0, dtype=np.int64)
+    sizes = np.bincount(group[group >= 0])
     static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
     for g in np.flatnonzero(sizes >= min_group):
         hull = cv2.convexHull(np.rint(points[group == g]).astype(np.int32))
