@@ -111,7 +111,7 @@ def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndar
 
 
 def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
-              static: np.ndarray | None = None, purity: float = 0.0) -> np.ndarray:
+              static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None) -> np.ndarray:
     """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more
     whose points are at least ``purity`` of its points plus the ``static`` points inside its hull.
 
@@ -122,12 +122,13 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         min_group: smallest group that makes a region.
         static: optional (S, 2) positions of points known not to move; a hull they crowd is not drawn.
         purity: the smallest share of a hull's points that must be ``points`` (0: every group is drawn).
+        group: optional (N,) ``linked_groups(points, link_px, min_group)``, when the caller has it already.
 
     Returns:
         (H, W) bool mask.
     """
     mask = np.zeros(shape, dtype=np.uint8)
-    group = linked_groups(points, link_px, min_group)
+    group = linked_groups(points, link_px, min_group) if group is None else group
     sizes = np.bincount(group[group >= 0])
     static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
     for g in np.flatnonzero(sizes >= min_group):
@@ -298,31 +299,31 @@ class MotionFrontEnd:
             scale = small[1] / self._tracking_shape[1]
             settled = np.isin(self._points.ids, self._frames[0][0]) & ~here
             link_px = self.config.link_fraction * small[1]
+            group = linked_groups(self.moving_track_points * scale, link_px, self.config.min_group)
             moving = hull_mask(self.moving_track_points * scale, small, link_px, self.config.min_group,
-                               self._points.points[settled] * scale, self.config.hull_purity)
+                               self._points.points[settled] * scale, self.config.hull_purity, group)
             if self.config.object_flow is not None:
-                moving = self._refined(moving, here, scale, link_px)
+                moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
                 moving |= self._carried(refit.dense, refit.index)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
 
-    def _refined(self, moving: np.ndarray, here: np.ndarray, scale: float, link_px: float) -> np.ndarray:
-        """``moving`` grown and trimmed by the flow view around each group of the tracks ``here`` (the moving
-        ones), from the tracks' and the dense flow's motion back over ``dense_gap`` frames; unchanged without
-        this frame's dense flow."""
+    def _refined(self, moving: np.ndarray, here: np.ndarray, group: np.ndarray, scale: float,
+                 link_px: float) -> np.ndarray:
+        """``moving`` grown and trimmed by the flow view around each ``group`` (of the moving tracks, those
+        ``here``), from the tracks' and the dense flow's motion back over ``dense_gap`` frames; unchanged
+        without this frame's dense flow."""
         gap = self.config.dense_gap
         if not self._backward or self._backward[-1][0] != self._index or len(self._frames) <= gap or not here.any():
             return moving
         ids, points = self._points.ids, self._points.points
         before_ids, before = self._frames[-1 - gap]
         _, now, then = np.intersect1d(ids, before_ids, assume_unique=True, return_indices=True)
-        xy = points[now] * scale
-        group = np.full(len(now), -1, dtype=np.int64)
-        moved = here[now]
-        group[moved] = linked_groups(xy[moved], link_px, self.config.min_group)
-        return refine_by_flow(moving, self._backward[-1][1], xy, (before[then] - points[now]) * scale, group,
-                              link_px, self.config.object_flow)
+        of_track = np.full(len(ids), -1, dtype=np.int64)
+        of_track[here] = group
+        return refine_by_flow(moving, self._backward[-1][1], points[now] * scale, (before[then] - points[now]) * scale,
+                              of_track[now], link_px, self.config.object_flow)
 
     def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
         """``mask`` of frame ``index`` warped to the current frame along the backward flows since."""
