@@ -31,7 +31,15 @@ import numpy as np
 
 @dataclass(frozen=True)
 class ObjectFlowConfig:
-    """Settings of the flow view around moving groups (pixels of the mask)."""
+    """Settings of the flow view around moving groups (pixels of the mask).
+
+    Attributes:
+        margin_px: how much better one model must explain a pixel's flow than the other to claim it.
+        join_fit_px: the largest error of the object's model at a pixel that joins the region.
+        trim_fit_px: the largest error of the background's model at a hull pixel that leaves it.
+        reach: the group's box is widened by this share of its size on every side (at least ``link_px``).
+        min_background: fewest static tracks in the box that give the background's model (else no change).
+    """
 
     margin_px: float = 0.5
     join_fit_px: float = 1.0
