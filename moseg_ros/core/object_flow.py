@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from moseg_ros.core.geometry import affine_fit
+
 
 @dataclass(frozen=True)
 class ObjectFlowConfig:
@@ -48,8 +50,8 @@ class ObjectFlowConfig:
     min_background: int = 6
 
 
-def fit_affine_flow(xy: np.ndarray, uv: np.ndarray) -> np.ndarray:
-    """Robust least-squares affine flow model.
+def fit_affine_flow(xy: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
+    """Robust least-squares affine flow model (core/geometry.affine_fit on the points and where they move).
 
     Args:
         xy: (N, 2) positions (x, y), N >= 3.
@@ -57,15 +59,25 @@ def fit_affine_flow(xy: np.ndarray, uv: np.ndarray) -> np.ndarray:
 
     Returns:
         (3, 2) A with uv ≈ [x, y, 1] · A, refitted once on the vectors whose residual is at most
-        max(2 × the median residual, 0.5 px) when three or more remain.
+        max(2 × the median residual, 0.5 px) when three or more remain; None when the positions are
+        (near) collinear.
     """
-    design = np.column_stack([xy, np.ones(len(xy))])
-    params = np.linalg.lstsq(design, uv, rcond=None)[0]
-    residual = np.hypot(*(design @ params - uv).T)
+    maps, valid = affine_fit(xy, xy + uv)
+    if not valid[0]:
+        return None
+    params = _flow_params(maps[0])
+    residual = np.hypot(*(np.column_stack([xy, np.ones(len(xy))]) @ params - uv).T)
     keep = residual <= max(2.0 * float(np.median(residual)), 0.5)
     if 3 <= keep.sum() < len(xy):
-        params = np.linalg.lstsq(design[keep], uv[keep], rcond=None)[0]
+        maps, valid = affine_fit(xy, xy + uv, keep.astype(np.float64))
+        if valid[0]:
+            params = _flow_params(maps[0])
     return params
+
+
+def _flow_params(affine: np.ndarray) -> np.ndarray:
+    """(3, 2) flow model A (uv = [x, y, 1] · A) of the (3, 3) affine map x -> M x + t: the map minus identity."""
+    return (affine[:2] - np.eye(2, 3)).T
 
 
 def affine_flow_error(params: np.ndarray, flow: np.ndarray, x0: int, y0: int) -> np.ndarray:
@@ -94,7 +106,8 @@ def refine_by_flow(mask: np.ndarray, flow: np.ndarray, xy: np.ndarray, uv: np.nd
         config: margins and reach.
 
     Returns:
-        (H, W) bool refined mask; groups whose tracks mostly lie outside ``mask`` (not drawn) are left out.
+        (H, W) bool refined mask; groups whose tracks mostly lie outside ``mask`` (not drawn), and groups
+        or backgrounds whose tracks lie on a line (no affine model), are left out.
     """
     out = mask.copy()
     height, width = mask.shape
@@ -114,9 +127,12 @@ def refine_by_flow(mask: np.ndarray, flow: np.ndarray, xy: np.ndarray, uv: np.nd
         around = static & (xy[:, 0] >= bx0) & (xy[:, 0] < bx1) & (xy[:, 1] >= by0) & (xy[:, 1] < by1)
         if around.sum() < config.min_background:
             continue
+        own_model, background_model = fit_affine_flow(xy[members], uv[members]), fit_affine_flow(xy[around], uv[around])
+        if own_model is None or background_model is None:
+            continue
         crop = flow[by0:by1, bx0:bx1]
-        own = affine_flow_error(fit_affine_flow(xy[members], uv[members]), crop, bx0, by0)
-        background = affine_flow_error(fit_affine_flow(xy[around], uv[around]), crop, bx0, by0)
+        own = affine_flow_error(own_model, crop, bx0, by0)
+        background = affine_flow_error(background_model, crop, bx0, by0)
         joins = (background - own > config.margin_px) & (own < config.join_fit_px)
         count, components = cv2.connectedComponents(joins.astype(np.uint8))
         reached = np.zeros(count, dtype=bool)

@@ -299,9 +299,10 @@ class MotionFrontEnd:
             scale = small[1] / self._tracking_shape[1]
             settled = np.isin(self._points.ids, self._frames[0][0]) & ~here
             link_px = self.config.link_fraction * small[1]
-            group = linked_groups(self.moving_track_points * scale, link_px, self.config.min_group)
-            moving = hull_mask(self.moving_track_points * scale, small, link_px, self.config.min_group,
-                               self._points.points[settled] * scale, self.config.hull_purity, group)
+            points = self.moving_track_points * scale
+            group = linked_groups(points, link_px, self.config.min_group)
+            moving = hull_mask(points, small, link_px, self.config.min_group, self._points.points[settled] * scale,
+                               self.config.hull_purity, group)
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
