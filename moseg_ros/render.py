@@ -31,37 +31,41 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
         instances: (h, w) int32 instance ids at the working resolution.
         dynamic_ids: (D,) ids of the instances judged to move by themselves.
         size: (H, W) of the input image.
-        margin_px: dilation in output pixels, so features on an object's rim are dropped too.
+        margin_px: dilation in output pixels, so features on an object's rim are dropped too; where two ids
+            grow into the same pixel the larger one wins.
 
     Returns:
         The masks at (H, W).
     """
     height, width = size
-    keep = np.zeros(int(instances.max(initial=0)) + 1, dtype=np.int32)
-    keep[dynamic_ids[dynamic_ids < keep.size]] = dynamic_ids[dynamic_ids < keep.size]
-    labels = keep[instances]
-    if labels.shape != (height, width):
-        labels = cv2.resize(labels, (width, height), interpolation=cv2.INTER_NEAREST)
-    if margin_px > 0 and labels.any():
-        labels = _grown(labels, margin_px)
-    dynamic = np.where(labels > 0, 255, 0).astype(np.uint8)
+    ids = np.unique(dynamic_ids[(dynamic_ids > 0) & (dynamic_ids <= instances.max(initial=0))])
+    # Each dynamic id becomes its rank (1..D, in the order of the ids) in the smallest unsigned type: resizing
+    # and dilating those is several times faster than int32 / float32 ids at the output size, and the order
+    # kept makes the dilation's maximum the same id.
+    ranks = np.zeros(int(instances.max(initial=0)) + 1, dtype=np.uint8 if ids.size < 256 else np.uint16)
+    ranks[ids] = np.arange(1, ids.size + 1)
+    ranked = np.take(ranks, instances)
+    if ranked.shape != (height, width):
+        ranked = cv2.resize(ranked, (width, height), interpolation=cv2.INTER_NEAREST)
+    if margin_px > 0 and ids.size:
+        ranked = _grown(ranked, margin_px)
+    dynamic = cv2.compare(ranked, 0, cv2.CMP_GT)  # 255 where moving
+    labels = np.take(np.concatenate([[0], ids]).astype(np.int32), ranked)
     return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
 
 
 def _grown(labels: np.ndarray, margin_px: int) -> np.ndarray:
-    """``labels`` with every id dilated by ``margin_px`` into the background around it.
+    """``labels`` (unsigned ints) with every label dilated by ``margin_px`` into the background around it.
 
     Only the bounding box of the labelled pixels, widened by the margin, can change, so only it is dilated
     (the masks of a frame are usually a small part of it)."""
-    x, y, w, h = cv2.boundingRect((labels > 0).astype(np.uint8))
+    x, y, w, h = cv2.boundingRect((labels > 0).view(np.uint8))
     rows = slice(max(y - margin_px, 0), y + h + margin_px)
     cols = slice(max(x - margin_px, 0), x + w + margin_px)
     box = labels[rows, cols]
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
-    # float32 holds every id below 2**24 exactly; OpenCV dilates no int32 images.
-    grown = cv2.dilate(box.astype(np.float32), kernel).astype(np.int32)
     labels = labels.copy()
-    labels[rows, cols] = np.where(box > 0, box, grown)
+    labels[rows, cols] = np.where(box > 0, box, cv2.dilate(box, kernel))
     return labels
 
 

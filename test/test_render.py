@@ -59,3 +59,11 @@ class TestRenderMasks:
             margin = int(rng.integers(1, 8))
             masks = render_masks(instances, ids, (60, 90), margin_px=margin)
             np.testing.assert_array_equal(masks.instance_labels, _full_image_growth(instances, margin))
+
+    def test_growth_with_more_ids_than_a_byte_holds(self):
+        instances = np.zeros((60, 90), np.int32)
+        ys, xs = np.divmod(np.arange(300) * 17 % (60 * 90), 90)
+        instances[ys, xs] = np.arange(1000, 1300)
+        masks = render_masks(instances, np.arange(1000, 1300, dtype=np.int32), (60, 90), margin_px=3)
+        np.testing.assert_array_equal(masks.instance_labels, _full_image_growth(instances, 3))
+        assert ((masks.dynamic == 255) == (masks.instance_labels > 0)).all()
