@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moseg_ros.core.object_flow import ObjectFlowConfig, affine_flow_error, fit_affine_flow, refine_by_flow
+from moseg_ros.core.object_flow import ObjectFlowConfig, affine_flow_error, fit_affine_flows, refine_by_flow
 
 A_OBJECT = np.array([[0.01, 0.0], [0.0, 0.01], [-3.0, 1.0]])  # a mover: its own translation, a little zoom
 A_BACKGROUND = np.array([[0.0, 0.0], [0.0, 0.0], [2.0, 0.0]])  # the camera pans
@@ -16,22 +16,40 @@ def affine_field(params: np.ndarray, height: int, width: int) -> np.ndarray:
     return (design @ params).astype(np.float32)
 
 
-class TestFitAffineFlow:
+class TestFitAffineFlows:
     def test_smoke_and_shape(self):
         xy = np.array([[0, 0], [10, 0], [0, 10], [10, 10]], dtype=np.float64)
-        assert fit_affine_flow(xy, np.zeros((4, 2))).shape == (3, 2)
+        models = fit_affine_flows([xy, xy[:3]], [np.zeros((4, 2)), np.zeros((3, 2))])
+        assert len(models) == 2 and all(model.shape == (3, 2) for model in models)
 
     def test_recovers_a_known_model(self):
         xy = np.random.default_rng(0).uniform(0, 200, size=(30, 2))
         uv = np.column_stack([xy, np.ones(30)]) @ A_OBJECT
-        np.testing.assert_allclose(fit_affine_flow(xy, uv), A_OBJECT, atol=1e-9)
+        np.testing.assert_allclose(fit_affine_flows([xy], [uv])[0], A_OBJECT, atol=1e-9)
 
     def test_refit_ignores_gross_outliers(self):
         rng = np.random.default_rng(1)
         xy = rng.uniform(0, 200, size=(40, 2))
         uv = np.column_stack([xy, np.ones(40)]) @ A_OBJECT
         uv[:4] += 20.0  # four tracks slipped onto something else
-        np.testing.assert_allclose(fit_affine_flow(xy, uv), A_OBJECT, atol=1e-9)
+        np.testing.assert_allclose(fit_affine_flows([xy], [uv])[0], A_OBJECT, atol=1e-9)
+
+    def test_each_set_of_a_batch_gets_its_own_model(self):
+        rng = np.random.default_rng(2)
+        xy = [rng.uniform(0, 200, size=(n, 2)) for n in (40, 7, 25)]
+        uv = [np.column_stack([points, np.ones(len(points))]) @ params
+              for points, params in zip(xy, (A_OBJECT, A_BACKGROUND, A_OBJECT))]
+        uv[0][:5] += 20.0  # outliers in one set must not move the others' models
+        models = fit_affine_flows(xy, uv)
+        for model, params in zip(models, (A_OBJECT, A_BACKGROUND, A_OBJECT)):
+            np.testing.assert_allclose(model, params, atol=1e-9)
+
+    def test_collinear_or_too_few_points_give_no_model(self):
+        line = np.column_stack([np.arange(10.0), 2.0 * np.arange(10.0)])
+        square = np.array([[0, 0], [10, 0], [0, 10], [10, 10]], dtype=np.float64)
+        models = fit_affine_flows([line, square[:2], square], [np.zeros((10, 2)), np.zeros((2, 2)), np.zeros((4, 2))])
+        assert models[0] is None and models[1] is None
+        np.testing.assert_allclose(models[2], 0.0, atol=1e-12)
 
 
 class TestAffineFlowError:

@@ -23,12 +23,14 @@ static tracks around it) nothing changes.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from moseg_ros.core.geometry import affine_fit
+from moseg_ros.core.geometry import affine_fit, to_homogeneous
+from moseg_ros.core.track_motion import row_medians
 
 
 @dataclass(frozen=True)
@@ -50,34 +52,42 @@ class ObjectFlowConfig:
     min_background: int = 6
 
 
-def fit_affine_flow(xy: np.ndarray, uv: np.ndarray) -> np.ndarray | None:
-    """Robust least-squares affine flow model (core/geometry.affine_fit on the points and where they move).
+def fit_affine_flows(xy: Sequence[np.ndarray], uv: Sequence[np.ndarray]) -> list[np.ndarray | None]:
+    """Robust least-squares affine flow models of several sets of points at once (core/geometry.affine_fit,
+    batched over the sets padded with weight 0: one fit and one refit for all, as a frame's groups and their
+    backgrounds need).
 
     Args:
-        xy: (N, 2) positions (x, y), N >= 3.
-        uv: (N, 2) flow vectors at them.
+        xy: S arrays (N_s, 2) of positions (x, y), each N_s >= 1.
+        uv: S arrays (N_s, 2) of the flow vectors at them.
 
     Returns:
-        (3, 2) A with uv ≈ [x, y, 1] · A, refitted once on the vectors whose residual is at most
-        max(2 × the median residual, 0.5 px) when three or more remain; None when the positions are
-        (near) collinear.
+        S models (3, 2) A with uv ≈ [x, y, 1] · A, each refitted once on the vectors whose residual is at most
+        max(2 × its set's median residual, 0.5 px) when three or more remain; None for a set with fewer than
+        three points or (near) collinear ones.
     """
-    maps, valid = affine_fit(xy, xy + uv)
-    if not valid[0]:
-        return None
-    params = _flow_params(maps[0])
-    residual = np.hypot(*(np.column_stack([xy, np.ones(len(xy))]) @ params - uv).T)
-    keep = residual <= max(2.0 * float(np.median(residual)), 0.5)
-    if 3 <= keep.sum() < len(xy):
-        maps, valid = affine_fit(xy, xy + uv, keep.astype(np.float64))
-        if valid[0]:
-            params = _flow_params(maps[0])
-    return params
+    counts = np.array([len(points) for points in xy])
+    present = np.arange(int(counts.max())) < counts[:, None]
+    x1 = np.zeros((len(counts), present.shape[1], 2))
+    flow = np.zeros_like(x1)
+    x1[present], flow[present] = np.concatenate(xy), np.concatenate(uv)
+    maps, valid = affine_fit(x1, x1 + flow, present.astype(np.float64))
+    params = _flow_params(maps)
+    residual = np.linalg.norm(to_homogeneous(x1) @ params - flow, axis=-1)
+    limit = np.maximum(2.0 * row_medians(np.where(present, residual, np.nan)), 0.5)
+    keep = present & (residual <= limit[:, None])
+    again = valid & (keep.sum(axis=1) >= 3) & (keep.sum(axis=1) < counts)
+    if again.any():
+        maps, refitted = affine_fit(x1[again], x1[again] + flow[again], keep[again].astype(np.float64))
+        rows = np.flatnonzero(again)[refitted]
+        params[rows] = _flow_params(maps[refitted])
+    return [params[s] if valid[s] else None for s in range(len(counts))]
 
 
 def _flow_params(affine: np.ndarray) -> np.ndarray:
-    """(3, 2) flow model A (uv = [x, y, 1] · A) of the (3, 3) affine map x -> M x + t: the map minus identity."""
-    return (affine[:2] - np.eye(2, 3)).T
+    """(..., 3, 2) flow models A (uv = [x, y, 1] · A) of (..., 3, 3) affine maps x -> M x + t: the maps minus
+    identity."""
+    return np.swapaxes(affine[..., :2, :] - np.eye(2, 3), -1, -2)
 
 
 def affine_flow_error(params: np.ndarray, flow: np.ndarray, x0: int, y0: int) -> np.ndarray:
@@ -115,6 +125,7 @@ def refine_by_flow(mask: np.ndarray, flow: np.ndarray, xy: np.ndarray, uv: np.nd
     seeds_all = np.rint(xy).astype(np.int64)
     seeds_all[:, 0] = seeds_all[:, 0].clip(0, width - 1)
     seeds_all[:, 1] = seeds_all[:, 1].clip(0, height - 1)
+    boxes, sets = [], []
     for g in np.unique(group[~static]):
         members = group == g
         seeds = seeds_all[members]
@@ -127,7 +138,12 @@ def refine_by_flow(mask: np.ndarray, flow: np.ndarray, xy: np.ndarray, uv: np.nd
         around = static & (xy[:, 0] >= bx0) & (xy[:, 0] < bx1) & (xy[:, 1] >= by0) & (xy[:, 1] < by1)
         if around.sum() < config.min_background:
             continue
-        own_model, background_model = fit_affine_flow(xy[members], uv[members]), fit_affine_flow(xy[around], uv[around])
+        boxes.append((seeds, bx0, by0, bx1, by1))
+        sets += [members, around]
+    if not boxes:
+        return out
+    models = fit_affine_flows([xy[s] for s in sets], [uv[s] for s in sets])
+    for (seeds, bx0, by0, bx1, by1), own_model, background_model in zip(boxes, models[::2], models[1::2]):
         if own_model is None or background_model is None:
             continue
         crop = flow[by0:by1, bx0:bx1]
