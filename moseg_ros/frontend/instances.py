@@ -59,7 +59,9 @@ class InstanceTracker:
 
     def __init__(self, min_iou: float = 0.2) -> None:
         self.min_iou = min_iou
-        self._previous: np.ndarray | None = None
+        # The previous frame's regions as given (0..R) and the id each got: matching against them needs no
+        # renumbering of the previous ids' map.
+        self._previous: tuple[np.ndarray, np.ndarray] | None = None
         self._next_id = 1
         self.ages: dict[int, int] = {}
 
@@ -70,22 +72,20 @@ class InstanceTracker:
         self.ages = {}
 
     def update(self, regions: np.ndarray) -> np.ndarray:
-        """Relabel ``regions`` ((H, W) int32, 0..R) with persistent ids; returns (H, W) int32."""
+        """Relabel ``regions`` ((H, W) int32, 0 = none and 1..R each present) with persistent ids; returns
+        (H, W) int32."""
         n_cur = int(regions.max(initial=0))
         ids = np.zeros(n_cur + 1, dtype=np.int32)
-        if self._previous is not None and self._previous.shape == regions.shape and n_cur:
-            prev_ids = np.unique(self._previous[self._previous > 0])
-            if prev_ids.size:
-                compact = np.searchsorted(prev_ids, self._previous) + 1
-                compact[self._previous == 0] = 0
-                iou = mask_iou_matrix(compact, regions, prev_ids.size, n_cur)
+        if self._previous is not None and self._previous[0].shape == regions.shape and n_cur:
+            previous, previous_ids = self._previous
+            if previous_ids.size:
+                iou = mask_iou_matrix(previous, regions, previous_ids.size, n_cur)
                 rows, cols = linear_sum_assignment(-iou)
                 good = iou[rows, cols] >= self.min_iou
-                ids[cols[good] + 1] = prev_ids[rows[good]]
+                ids[cols[good] + 1] = previous_ids[rows[good]]
         fresh = np.flatnonzero(ids[1:] == 0) + 1
         ids[fresh] = np.arange(self._next_id, self._next_id + fresh.size, dtype=np.int32)
         self._next_id += fresh.size
-        tracked = ids[regions]
-        self._previous = tracked
+        self._previous = (regions, ids[1:])
         self.ages = {int(i): self.ages.get(int(i), 0) + 1 for i in ids[1:]}
-        return tracked
+        return np.take(ids, regions)
