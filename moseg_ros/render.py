@@ -49,7 +49,8 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
         ranked = cv2.resize(ranked, (width, height), interpolation=cv2.INTER_NEAREST)
     if margin_px > 0 and ids.size:
         ranked = _grown(ranked, margin_px)
-    dynamic = cv2.compare(ranked, 0, cv2.CMP_GT)  # 255 where moving
+    # 255 where moving; against an array, not the scalar 0, which OpenCV misreads for 1xN images.
+    dynamic = cv2.compare(ranked, np.zeros_like(ranked), cv2.CMP_GT)
     labels = np.take(np.concatenate([[0], ids]).astype(np.int32), ranked)
     return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
 

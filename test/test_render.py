@@ -67,3 +67,9 @@ class TestRenderMasks:
         masks = render_masks(instances, np.arange(1000, 1300, dtype=np.int32), (60, 90), margin_px=3)
         np.testing.assert_array_equal(masks.instance_labels, _full_image_growth(instances, 3))
         assert ((masks.dynamic == 255) == (masks.instance_labels > 0)).all()
+
+    def test_single_row_and_single_pixel_images(self):
+        for shape in ((1, 1), (1, 7), (7, 1)):
+            instances = np.ones(shape, np.int32)
+            masks = render_masks(instances, np.array([1], np.int32), shape, margin_px=2)
+            assert (masks.dynamic == 255).all() and (masks.instance_labels == 1).all() and not masks.static.any()
