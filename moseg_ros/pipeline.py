@@ -48,7 +48,7 @@ class PipelineConfig:
     working_width: int = setting(640, "frames are processed at this width (pixels; dense flow)", low=64, high=4096)
     track_width: int = setting(1280, "moving_objects: KLT tracks run at this width (pixels)", low=64, high=4096)
     max_tracks: int = setting(2000, "moving_objects: points tracked per frame", low=50, high=20000)
-    flow_preset: str = setting("auto", "DIS optical flow preset (auto: medium for object_level, else fast)",
+    flow_preset: str = setting("auto", "DIS optical flow preset (auto: fast for epipolar_baseline, else medium)",
                                choices=FLOW_PRESETS)
     residual_threshold_px: float = setting(1.5, "epipolar_baseline: epipolar residual above which a pixel moves "
                                            "(working px)", low=0.1, high=50.0)
