@@ -38,11 +38,12 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
         The masks at (H, W).
     """
     height, width = size
-    ids = np.unique(dynamic_ids[(dynamic_ids > 0) & (dynamic_ids <= instances.max(initial=0))])
-    # Each dynamic id becomes its rank (1..D, in the order of the ids) in the smallest unsigned type: resizing
-    # and dilating those is several times faster than int32 / float32 ids at the output size, and the order
-    # kept makes the dilation's maximum the same id.
-    ranks = np.zeros(int(instances.max(initial=0)) + 1, dtype=np.uint8 if ids.size < 256 else np.uint16)
+    top = int(instances.max(initial=0))
+    ids = np.unique(dynamic_ids[(dynamic_ids > 0) & (dynamic_ids <= top)])
+    # Each dynamic id becomes its rank (1..D, in the order of the ids) in the smallest type that holds D:
+    # resizing and dilating uint8 is several times faster than int32 / float32 ids at the output size, and the
+    # order kept makes the dilation's maximum the same id.
+    ranks = np.zeros(top + 1, dtype=_rank_type(ids.size))
     ranks[ids] = np.arange(1, ids.size + 1)
     ranked = np.take(ranks, instances)
     if ranked.shape != (height, width):
@@ -51,12 +52,19 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
         ranked = _grown(ranked, margin_px)
     # 255 where moving; against an array, not the scalar 0, which OpenCV misreads for 1xN images.
     dynamic = cv2.compare(ranked, np.zeros_like(ranked), cv2.CMP_GT)
-    labels = np.take(np.concatenate([[0], ids]).astype(np.int32), ranked)
+    labels = np.take(np.concatenate([[0], ids]).astype(np.int32),
+                     ranked if ranked.dtype.kind == "u" else ranked.astype(np.int64))
     return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
 
 
+def _rank_type(count: int) -> type:
+    """The smallest type OpenCV resizes and dilates that holds ranks 0..count: uint8, uint16, else float32
+    (exact below 2**24, more than the pixels of any working image)."""
+    return np.uint8 if count < 2 ** 8 else np.uint16 if count < 2 ** 16 else np.float32
+
+
 def _grown(labels: np.ndarray, margin_px: int) -> np.ndarray:
-    """``labels`` (unsigned ints) with every label dilated by ``margin_px`` into the background around it.
+    """``labels`` (ranks) with every label dilated by ``margin_px`` into the background around it.
 
     Only the bounding box of the labelled pixels, widened by the margin, can change, so only it is dilated
     (the masks of a frame are usually a small part of it)."""

@@ -73,3 +73,11 @@ class TestRenderMasks:
             instances = np.ones(shape, np.int32)
             masks = render_masks(instances, np.array([1], np.int32), shape, margin_px=2)
             assert (masks.dynamic == 255).all() and (masks.instance_labels == 1).all() and not masks.static.any()
+
+    def test_more_ids_than_sixteen_bits_hold(self):
+        instances = np.arange(1, 300 * 300 + 1, dtype=np.int32).reshape(300, 300)
+        instances[::7] = 0
+        ids = np.unique(instances[instances > 0])
+        assert ids.size > 2 ** 16
+        masks = render_masks(instances, ids, (300, 300), margin_px=1)
+        np.testing.assert_array_equal(masks.instance_labels, _full_image_growth(instances, 1))
