@@ -55,9 +55,11 @@ class MotionFrontEndConfig:
     """Settings of the motion front-end (pixels at the working resolution unless a fraction of the width)."""
 
     window_length: int = 8
-    # KLT's window at the tracking width (1280 px): 17 px instead of 21 costs 0.6 of the time per point and
-    # drifts less where a window straddles a mover's edge (fewer static points flagged on KT3DMoSeg).
-    tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=17))
+    # KLT's window at the tracking width (1280 px): a smaller window drifts less where it straddles a mover's
+    # edge (fewer static points flagged on KT3DMoSeg) and follows smaller movers, and each point costs less;
+    # 13 px rather than 17 once the dense flow was DIS medium (21 -> 17 with fast, whose coarse flow needed
+    # the tracks' wider reach; the README has both measurements).
+    tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=13))
     track_motion: TrackMotionConfig = field(default_factory=TrackMotionConfig)
     sticky_windows: int = 2
     sticky_frames: int = 8
