@@ -64,6 +64,37 @@ class TestDenseBackwardCheck:
         assert max(checked) == 0.0
 
 
+class TestForwardGuess:
+    FRAMES = TestDenseBackwardCheck.FRAMES
+    # The pan's forward flow (2 px left per frame), at half size in half-size pixels.
+    PAN = np.broadcast_to(np.float32([-1.0, 0.0]), (94, 311, 2)).copy()
+
+    @staticmethod
+    def _guided(frames: list[np.ndarray], forward: np.ndarray, **settings) -> PointTracker:
+        tracker = PointTracker(TrackerConfig(max_points=300, **settings))
+        for i, frame in enumerate(frames):
+            tracker.update(frame, None, forward if i else None)
+        return tracker
+
+    def test_a_right_guess_lands_where_the_full_search_does(self):
+        alone, _ = _tracked(self.FRAMES, None)
+        guided = self._guided(self.FRAMES, self.PAN)
+        common, a, g = np.intersect1d(alone.ids, guided.ids, return_indices=True)
+        assert len(common) > 250
+        assert np.percentile(np.abs(alone.points[a] - guided.points[g]), 95) < 0.1
+
+    def test_the_search_starts_from_the_guess(self):
+        # 30 px off (15 half-size px): beyond what the finest two levels of a 21 px window reach, so a tracker
+        # that ignored the guess would keep its points and one that uses it loses them.
+        alone, _ = _tracked(self.FRAMES, None)
+        astray = self._guided(self.FRAMES, self.PAN + np.float32([15.0, 0.0]))
+        assert len(np.intersect1d(alone.ids, astray.ids)) < 0.5 * len(alone.ids)
+
+    def test_shape_of_what_comes_back(self):
+        guided = self._guided(self.FRAMES[:2], self.PAN)
+        assert guided.points.shape == (300, 2) and guided.points.dtype == np.float32 and guided.ids.shape == (300,)
+
+
 class TestSampled:
     def test_shape_and_units_of_a_half_size_flow(self):
         from moseg_ros.frontend.tracks import _sampled

@@ -36,8 +36,8 @@ def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
     """Milliseconds per frame (after the first) of KLT tracking plus DIS flow both ways and nothing else.
 
-    KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, its backward
-    check shared with the dense flow as the front-end does; flow: the DIS preset the method runs, between
+    KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, guided by the
+    dense flows and its backward check shared with them as the front-end does; flow: the DIS preset the method runs, between
     consecutive frames at ``working_width``.
     """
     from moseg_ros.frontend.flow import DenseFlow
@@ -53,11 +53,10 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     ms = []
     for i in range(len(frames)):
         start = time.perf_counter()
-        backward = None
+        flows = (None, None)
         if i:
-            backward = flow(dense[i], dense[i - 1])
-            flow(dense[i - 1], dense[i])
-        tracks.update(tracking[i], backward)
+            flows = (flow(dense[i], dense[i - 1]), flow(dense[i - 1], dense[i]))
+        tracks.update(tracking[i], *flows)
         ms.append((time.perf_counter() - start) * 1e3)
     return np.array(ms[1:])
 

@@ -263,9 +263,10 @@ class MotionFrontEnd:
                 flows = (self._flow(now, earlier), self._flow(earlier, now))
             self._backward.append((self._index, flows[0]))
         with self.stages("tracks"):
-            # The dense flow back to the previous frame is the tracks' backward check too (frontend/tracks.py).
-            one_back = flows[0] if flows is not None and self.config.dense_gap == 1 else None
-            self._points.update(gray, one_back)
+            # The dense flows to and from the previous frame are the tracks' starting guess and backward check
+            # too (frontend/tracks.py).
+            adjacent = flows if flows is not None and self.config.dense_gap == 1 else (None, None)
+            self._points.update(gray, *adjacent)
             self._frames.append((self._points.ids.copy(), self._points.points.copy()))
         gap = self.config.track_motion.gap
         pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None

@@ -1,8 +1,10 @@
 """Sparse point trajectories: pyramidal Lucas-Kanade with a forward-backward check, reseeded where thin.
 
-The backward half of the check can come from a dense backward flow the caller computes anyway (the motion
-front-end's DIS flow): a point whose round trip through it lands close to its start is kept without KLT's
-backward pass, and only the others are tracked back by KLT.
+The caller's dense flows (the motion front-end's DIS flow, computed anyway) save KLT work both ways: the
+forward flow tells KLT where each point lands, so it refines that guess on the finest pyramid levels only
+instead of searching from the coarsest; a point whose round trip through the backward flow lands close to its
+start is kept without KLT's backward pass, and only the others are tracked back by KLT (from the backward
+flow's guess too).
 """
 
 from __future__ import annotations
@@ -31,6 +33,9 @@ class TrackerConfig:
     # no KLT backward pass. Half of fb_max_px: the dense flow is coarser than KLT, so only a clear agreement
     # stands in for KLT's own check (at fb_max_px, tracks on moving objects' edges slipped through).
     flow_check_px: float = 0.5
+    # Pyramid levels above the finest that KLT searches when a dense flow gives it a starting guess: the guess
+    # is within a pixel or two except on small fast movers, which one coarser level still reaches.
+    guided_levels: int = 1
 
 
 class PointTracker:
@@ -49,6 +54,8 @@ class PointTracker:
         self.config = config
         self._lk = dict(winSize=(config.window, config.window), maxLevel=config.levels,
                         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, config.stop_px))
+        self._guided = dict(self._lk, maxLevel=min(config.levels, config.guided_levels),
+                            flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
         self.reset()
 
     def reset(self) -> None:
@@ -59,25 +66,26 @@ class PointTracker:
         self._next_id = 0
         self.flow_checked = 0.0
 
-    def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None) -> None:
+    def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None,
+               forward_flow: np.ndarray | None = None) -> None:
         """Track the living points into ``gray`` ((H, W) uint8), then seed new ones.
 
         ``backward_flow``: optional (h, w, 2) flow from ``gray`` to the previous frame, at any size of the same
         aspect (its vectors in its own pixels); the points it brings back near their start skip KLT's backward
-        pass."""
+        pass. ``forward_flow``: optional flow the other way (from the previous frame to ``gray``), KLT's
+        starting guess."""
         self.flow_checked = 0.0
         if self._previous is not None and len(self.points):
-            self._track(self._previous, gray, backward_flow)
+            self._track(self._previous, gray, backward_flow, forward_flow)
         self._seed(gray)
         self._previous = gray
 
-    def _track(self, previous: np.ndarray, gray: np.ndarray, backward_flow: np.ndarray | None) -> None:
-        start = self.points.reshape(-1, 1, 2)
-        moved, ok, _ = cv2.calcOpticalFlowPyrLK(previous, gray, start, None, **self._lk)
-        moved = moved.reshape(-1, 2)
+    def _track(self, previous: np.ndarray, gray: np.ndarray, backward_flow: np.ndarray | None,
+               forward_flow: np.ndarray | None) -> None:
+        moved, ok = _klt(previous, gray, self.points, forward_flow, self._lk, self._guided)
         back, ok_back = self._tracked_back(previous, gray, moved, backward_flow)
         h, w = gray.shape
-        keep = (ok.ravel() == 1) & ok_back
+        keep = ok & ok_back
         keep &= np.hypot(*(back - self.points).T) < self.config.fb_max_px
         keep &= (moved[:, 0] >= 0) & (moved[:, 0] <= w - 1) & (moved[:, 1] >= 0) & (moved[:, 1] <= h - 1)
         self.ids, self.points = self.ids[keep], moved[keep]
@@ -96,9 +104,7 @@ class PointTracker:
             redo = np.flatnonzero(~agrees)
             self.flow_checked = float(agrees.mean())
         if len(redo):
-            klt, ok, _ = cv2.calcOpticalFlowPyrLK(gray, previous, moved[redo].reshape(-1, 1, 2), None, **self._lk)
-            back[redo] = klt.reshape(-1, 2)
-            ok_back[redo] = ok.ravel() == 1
+            back[redo], ok_back[redo] = _klt(gray, previous, moved[redo], backward_flow, self._lk, self._guided)
         return back, ok_back
 
     def _seed(self, gray: np.ndarray) -> None:
@@ -118,6 +124,20 @@ class PointTracker:
         self.ids = np.concatenate([self.ids, np.arange(self._next_id, self._next_id + len(corners))])
         self.points = np.concatenate([self.points, corners])
         self._next_id += len(corners)
+
+
+def _klt(source: np.ndarray, target: np.ndarray, points: np.ndarray, flow: np.ndarray | None, search: dict,
+         guided: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 2) positions in ``target`` of the (N, 2) ``points`` of ``source`` and (N,) bool whether KLT found
+    them: a full pyramid ``search`` without a dense ``flow`` (source -> target), else a ``guided`` refinement
+    of where the flow puts them."""
+    start = points.reshape(-1, 1, 2)
+    if flow is None:
+        moved, ok, _ = cv2.calcOpticalFlowPyrLK(source, target, start, None, **search)
+    else:
+        guess = (points + _sampled(flow, points, source.shape)).astype(np.float32).reshape(-1, 1, 2)
+        moved, ok, _ = cv2.calcOpticalFlowPyrLK(source, target, start, guess, **guided)
+    return moved.reshape(-1, 2), ok.ravel() == 1
 
 
 def _sampled(flow: np.ndarray, points: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
