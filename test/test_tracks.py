@@ -95,6 +95,39 @@ class TestForwardGuess:
         assert guided.points.shape == (300, 2) and guided.points.dtype == np.float32 and guided.ids.shape == (300,)
 
 
+class TestSeedWidth:
+    # White squares on black: their corners are the only corners, at known places.
+    TOPS = [(20 + 60 * (i % 6), 30 + 70 * (i // 6)) for i in range(12)]
+
+    def _image(self) -> np.ndarray:
+        image = np.zeros((200, 400), np.uint8)
+        for x, y in self.TOPS:
+            image[y:y + 16, x:x + 16] = 255
+        return image
+
+    def _corners(self) -> np.ndarray:
+        return np.float32([(x + dx, y + dy) for x, y in self.TOPS for dx in (0, 15) for dy in (0, 15)])
+
+    def _distances(self, seed_width: int) -> np.ndarray:
+        tracker = PointTracker(TrackerConfig(max_points=48, min_distance=5, quality=0.01, seed_width=seed_width))
+        tracker.update(self._image())
+        gaps = np.linalg.norm(tracker.points[:, None] - self._corners()[None], axis=2)
+        return gaps.min(axis=1)
+
+    def test_full_size_finds_the_corners(self):
+        assert np.all(self._distances(0) <= 1.5)
+
+    def test_half_size_corners_land_on_the_full_size_corners(self):
+        distances = self._distances(200)
+        assert len(distances) >= 40 and np.all(distances <= 2.0)
+
+    def test_spacing_holds_in_full_size_pixels(self):
+        tracker = PointTracker(TrackerConfig(max_points=2000, min_distance=8, quality=0.001, seed_width=200))
+        tracker.update(cv2.cvtColor(textured_frames(1)[0], cv2.COLOR_RGB2GRAY))
+        nearest = np.sort(np.linalg.norm(tracker.points[:, None] - tracker.points[None], axis=2), axis=1)[:, 1]
+        assert len(tracker.points) > 100 and nearest.min() >= 8 - 2 * 1.6
+
+
 class TestSampled:
     def test_shape_and_units_of_a_half_size_flow(self):
         from moseg_ros.frontend.tracks import _sampled

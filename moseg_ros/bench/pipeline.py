@@ -37,8 +37,8 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     """Milliseconds per frame (after the first) of KLT tracking plus DIS flow both ways and nothing else.
 
     KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, guided by the
-    dense flows and its backward check shared with them as the front-end does; flow: the DIS preset the method runs, between
-    consecutive frames at ``working_width``.
+    dense flows and its backward check shared with them as the front-end does; flow: the DIS preset the
+    method runs, between consecutive frames at ``working_width``.
     """
     from moseg_ros.frontend.flow import DenseFlow
     from moseg_ros.frontend.motion import resized_to_width

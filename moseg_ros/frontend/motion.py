@@ -58,8 +58,10 @@ class MotionFrontEndConfig:
     # KLT's window at the tracking width (1280 px): a smaller window drifts less where it straddles a mover's
     # edge (fewer static points flagged on KT3DMoSeg) and follows smaller movers, and each point costs less;
     # 13 px rather than 17 once the dense flow was DIS medium (21 -> 17 with fast, whose coarse flow needed
-    # the tracks' wider reach; the README has both measurements).
-    tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=13))
+    # the tracks' wider reach; the README has both measurements). Corners are found at the dense width, with
+    # a quality floor low enough that as many are found there as at full size.
+    tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=13, quality=0.001,
+                                                                        seed_width=640))
     track_motion: TrackMotionConfig = field(default_factory=TrackMotionConfig)
     sticky_windows: int = 2
     sticky_frames: int = 8
