@@ -28,8 +28,8 @@ from moseg_ros.render import Masks, render_masks
 from moseg_ros.timing import Stages
 
 METHODS = tuple(METHOD_CLASSES)
-# auto: each method's own preset (methods/*.py: fast for moving_objects and epipolar_baseline; medium for
-# object_level, whose ground-contact test compares flows of a pixel or two).
+# auto: each method's own preset (methods/*.py: fast for epipolar_baseline, balanced for moving_objects; medium
+# for object_level, whose ground-contact test compares flows of a pixel or two).
 FLOW_PRESETS = ("auto", *DIS_PRESETS)
 # Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
 # 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
@@ -48,7 +48,8 @@ class PipelineConfig:
     working_width: int = setting(640, "frames are processed at this width (pixels; dense flow)", low=64, high=4096)
     track_width: int = setting(1280, "moving_objects: KLT tracks run at this width (pixels)", low=64, high=4096)
     max_tracks: int = setting(2000, "moving_objects: points tracked per frame", low=50, high=20000)
-    flow_preset: str = setting("auto", "DIS optical flow preset (auto: fast for epipolar_baseline, else medium)",
+    flow_preset: str = setting("auto", "DIS optical flow preset (auto: fast for epipolar_baseline, balanced for "
+                               "moving_objects, medium for object_level)",
                                choices=FLOW_PRESETS)
     residual_threshold_px: float = setting(1.5, "epipolar_baseline: epipolar residual above which a pixel moves "
                                            "(working px)", low=0.1, high=50.0)

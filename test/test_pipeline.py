@@ -85,7 +85,7 @@ def test_invalid_configuration_is_named():
 
 
 def test_auto_flow_preset_follows_the_method():
-    assert PipelineConfig().dis_preset() == "medium"
+    assert PipelineConfig().dis_preset() == "balanced"
     assert PipelineConfig(method="epipolar_baseline").dis_preset() == "fast"
     assert PipelineConfig(method="object_level").dis_preset() == "medium"
     assert PipelineConfig(method="object_level", flow_preset="ultrafast").dis_preset() == "ultrafast"

@@ -45,11 +45,11 @@ class MovingObjects:
     """Weight-free moving-object regions from sparse and dense epipolar evidence."""
 
     name = "moving_objects"
-    # DIS medium resolves the flow down to half the working size: small, fast movers (a car crossing 35 m
-    # ahead moves 8-14 px a frame at 621 px, and is 15 px tall) come out of the fast preset's quarter-size
-    # flow as background. It costs the frame path about 20 ms a frame more than fast (both ways at 640 px,
-    # two threads); fast stays a setting for speed (the README has both's figures).
-    flow_preset = "medium"
+    # DIS balanced (medium's resolution) resolves the flow down to half the working size: small, fast movers (a
+    # car crossing 35 m ahead moves 8-14 px a frame at 621 px, and is 15 px tall) come out of the fast preset's
+    # quarter-size flow as background. It costs the frame path about 25 ms a frame more than fast on one
+    # thread; fast stays a setting for speed (the README has the presets' figures).
+    flow_preset = "balanced"
 
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
