@@ -112,7 +112,8 @@ def test_the_default_method_finds_the_camel(tmp_path):
 def test_the_default_method_finds_the_dog_a_turning_camera_follows(tmp_path):
     """DAVIS-2016 'libby' (a dog running, the camera panning after it about 2 degrees a frame), 30 frames: with
     the guessed camera matrix such pairs sign only what lies behind infinity by half the rotation's image
-    motion. Measured: J 0.49, recall 0.72 (2026-12-02, DIS balanced); 0.20 and 0.26 when such pairs gave no sign at all."""
+    motion. Measured: J 0.49, recall 0.72 (2026-12-02, DIS balanced); 0.20 and 0.26 when such pairs gave no
+    sign at all."""
     result = _real_clip(tmp_path, "libby", 30)
     assert result["mean_j"] > 0.3 and result["recall"] > 0.4
 
@@ -120,7 +121,7 @@ def test_the_default_method_finds_the_dog_a_turning_camera_follows(tmp_path):
 def test_the_flow_view_covers_the_cows_smooth_bodies(tmp_path):
     """DAVIS-2016 'cows' (a cow walking, the camera following), 30 frames: its smooth flank holds few tracks,
     and the flow view around its hulls (core/object_flow.py) grows the region over it. Measured: J 0.71,
-    recall 0.89 (2026-12-02, DIS balanced; 0.72 / 0.88 with medium); with DIS fast J 0.65, recall 0.80, and without the flow view
-    J 0.46, recall 0.55."""
+    recall 0.89 (2026-12-02, DIS balanced; 0.72 / 0.88 with medium); with DIS fast J 0.65, recall 0.80, and
+    without the flow view J 0.46, recall 0.55."""
     result = _real_clip(tmp_path, "cows", 30)
     assert result["mean_j"] > 0.55 and result["recall"] > 0.7 and result["precision"] > 0.65
