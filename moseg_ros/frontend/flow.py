@@ -7,7 +7,7 @@ import numpy as np
 
 # name: (OpenCV's preset, variational refinement iterations per scale instead of the preset's, or None).
 # balanced is medium's resolution with 2 refinement iterations instead of 5: a fifth less time, and the
-# evaluations within 0.002 of medium's (README).
+# evaluations within 0.01 of medium's (README).
 DIS_PRESETS = {
     "ultrafast": (cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, None),
     "fast": (cv2.DISOPTICAL_FLOW_PRESET_FAST, None),

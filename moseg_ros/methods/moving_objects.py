@@ -47,7 +47,7 @@ class MovingObjects:
     name = "moving_objects"
     # DIS balanced (medium's resolution) resolves the flow down to half the working size: small, fast movers (a
     # car crossing 35 m ahead moves 8-14 px a frame at 621 px, and is 15 px tall) come out of the fast preset's
-    # quarter-size flow as background. It costs the frame path about 25 ms a frame more than fast on one
+    # quarter-size flow as background. It costs the frame path about 28 ms a frame more than fast on one
     # thread; fast stays a setting for speed (the README has the presets' figures).
     flow_preset = "balanced"
 
