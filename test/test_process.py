@@ -52,8 +52,8 @@ def test_real_kitti_street_is_mostly_left_usable(tmp_path):
     """The first 40 real KITTI frames (odometry 07, a residential street, few movers): every frame gets a mask
     and almost nothing static is flagged. Measured: 1.14 % of the pixels on average (2026-12-02 evening; 0.84 %
     before KLT was guided by the dense flow, seeded at the dense width and DIS balanced): a pedestrian leaving a
-    shop (frames 12-20, 1-2 %) and, at the corner of frames 26-32, walls and signs that the dense cheirality
-    test puts behind infinity (3-5 % of those frames). The map built from these frames loses 2-3 % of its
+    shop (frames 12-20, 1-2 %) and, at the corner of frames 26-32, walls and a sign (2.4-5.0 % of those
+    frames; 2.1-3.8 % before). The map built from these frames loses 2-3 % of its
     features to the masks (README, `moseg eval map`)."""
     from conftest import shared_data
     from moseg_ros.io.kitti import kitti_to_bag
