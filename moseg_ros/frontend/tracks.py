@@ -85,7 +85,8 @@ class PointTracker:
 
     def _track(self, previous: np.ndarray, gray: np.ndarray, backward_flow: np.ndarray | None,
                forward_flow: np.ndarray | None) -> None:
-        moved, ok = _klt(previous, gray, self.points, forward_flow, self._lk, self._guided)
+        guess = None if forward_flow is None else self.points + _sampled(forward_flow, self.points, previous.shape)
+        moved, ok = _klt(previous, gray, self.points, guess, self._lk, self._guided)
         back, ok_back = self._tracked_back(previous, gray, moved, backward_flow)
         h, w = gray.shape
         keep = ok & ok_back
@@ -97,17 +98,18 @@ class PointTracker:
                       backward_flow: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
         """(N, 2) where each moved point lands back in ``previous`` and (N,) bool whether that is known: from
         the dense backward flow where it agrees with the start within ``flow_check_px``, from KLT elsewhere."""
-        back = np.empty_like(moved)
+        guess = None if backward_flow is None else moved + _sampled(backward_flow, moved, gray.shape)
+        back = np.empty_like(moved) if guess is None else guess.copy()
         ok_back = np.zeros(len(moved), dtype=bool)
         redo = np.arange(len(moved))
-        if backward_flow is not None and self.config.flow_check_px > 0:
-            back = moved + _sampled(backward_flow, moved, gray.shape)
-            agrees = np.hypot(*(back - self.points).T) < self.config.flow_check_px
+        if guess is not None and self.config.flow_check_px > 0:
+            agrees = np.hypot(*(guess - self.points).T) < self.config.flow_check_px
             ok_back[agrees] = True
             redo = np.flatnonzero(~agrees)
             self.flow_checked = float(agrees.mean())
         if len(redo):
-            back[redo], ok_back[redo] = _klt(gray, previous, moved[redo], backward_flow, self._lk, self._guided)
+            back[redo], ok_back[redo] = _klt(gray, previous, moved[redo], None if guess is None else guess[redo],
+                                             self._lk, self._guided)
         return back, ok_back
 
     def _seed(self, gray: np.ndarray) -> None:
@@ -134,17 +136,17 @@ class PointTracker:
         self._next_id += len(corners)
 
 
-def _klt(source: np.ndarray, target: np.ndarray, points: np.ndarray, flow: np.ndarray | None, search: dict,
+def _klt(source: np.ndarray, target: np.ndarray, points: np.ndarray, guess: np.ndarray | None, search: dict,
          guided: dict) -> tuple[np.ndarray, np.ndarray]:
     """(N, 2) positions in ``target`` of the (N, 2) ``points`` of ``source`` and (N,) bool whether KLT found
-    them: a full pyramid ``search`` without a dense ``flow`` (source -> target), else a ``guided`` refinement
-    of where the flow puts them."""
+    them: a full pyramid ``search`` without a ``guess`` (N, 2) of where they land (a dense flow's), else a
+    ``guided`` refinement of it."""
     start = points.reshape(-1, 1, 2)
-    if flow is None:
+    if guess is None:
         moved, ok, _ = cv2.calcOpticalFlowPyrLK(source, target, start, None, **search)
     else:
-        guess = (points + _sampled(flow, points, source.shape)).astype(np.float32).reshape(-1, 1, 2)
-        moved, ok, _ = cv2.calcOpticalFlowPyrLK(source, target, start, guess, **guided)
+        moved, ok, _ = cv2.calcOpticalFlowPyrLK(source, target, start,
+                                                guess.astype(np.float32).reshape(-1, 1, 2), **guided)
     return moved.reshape(-1, 2), ok.ravel() == 1
 
 
