@@ -4,7 +4,7 @@ from pathlib import Path
 
 import numpy as np
 
-from moseg_ros.core.flow_field import forward_backward_error, pixel_grid
+from moseg_ros.core.flow_field import forward_backward_error, lands_inside, pixel_grid
 
 CORE = Path(__file__).resolve().parents[1] / "moseg_ros" / "core"
 
@@ -32,6 +32,18 @@ class TestForwardBackwardError:
         error = forward_backward_error(forward, backward)
         assert np.allclose(error[5, 5], 1.0, atol=1e-5)
         assert error[5, 29] > 100  # lands outside the image
+
+
+class TestLandsInside:
+    def test_shape_and_a_still_flow_inside_the_margin(self):
+        inside = lands_inside(np.zeros((20, 30, 2), np.float32), 3)
+        assert inside.shape == (20, 30) and inside.dtype == bool
+        assert inside[3:17, 3:27].all() and not inside[:3].any() and not inside[:, 27:].any()
+
+    def test_a_pan_moves_the_excluded_band_to_where_matches_land_near_the_border(self):
+        inside = lands_inside(np.full((20, 30, 2), (-10.0, 0.0), np.float32), 4)
+        # x - 10 must be in [4, 25]: columns 14..29 (content at the left came from outside the view).
+        assert not inside[10, :14].any() and inside[10, 14:].all()
 
 
 def test_core_imports_nothing_from_the_front_end_or_ros():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
@@ -163,6 +165,34 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestBorder:
+    """Matches that land near the earlier frame's border are no evidence (DIS extrapolates there; KITTI 07's
+    corner flagged the band entering the view in a turn), and the rest of the frame is decided as before."""
+
+    @staticmethod
+    def _refit(border_fraction: float):
+        backward, is_car, K = pan_follow_flow(degrees=2.0)
+        w = backward.shape[1]
+        landing = np.arange(w) + backward[..., 0]
+        near_border = (landing < 0.05 * w) | (landing > 0.95 * (w - 1))  # within 5 % of the earlier frame's sides
+        backward[near_border & ~is_car, 1] += 3.0  # a wrong match, off its epipolar line
+        gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
+        base = MotionFrontEndConfig(dense_width=w)
+        config = replace(base, dense_baseline=replace(base.dense_baseline, border_fraction=border_fraction))
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, False, (backward, -backward), gray,
+                                  is_car.shape)
+        return MotionFrontEnd(config).refit(observation).dense, near_border, is_car
+
+    def test_the_default_leaves_the_band_out_and_keeps_the_mover(self):
+        dense, near_border, is_car = self._refit(MotionFrontEndConfig().dense_baseline.border_fraction)
+        assert near_border.mean() > 0.03 and not dense[near_border].any()
+        assert dense[is_car].mean() > 0.9
+
+    def test_without_it_the_wrong_matches_are_flagged(self):
+        dense, near_border, _ = self._refit(0.0)
+        assert dense[near_border].mean() > 0.3
 
 
 class TestTextureReach:

@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.core import geometry
-from moseg_ros.core.flow_field import forward_backward_error, pixel_grid
+from moseg_ros.core.flow_field import forward_backward_error, lands_inside, pixel_grid
 from moseg_ros.core.robust import fundamental_ransac, homography_ransac
 
 
@@ -38,6 +38,7 @@ class BaselineConfig:
     min_inliers: int = 30
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
+    border_fraction: float = 0.0
 
 
 @dataclass
@@ -46,7 +47,8 @@ class EpipolarResidual:
 
     Attributes:
         residual: (H, W) float32 Sampson distance in pixels (sqrt of eq. 11.9); 0 where unknown.
-        valid: (H, W) bool, pixels whose flow passed the forward-backward check.
+        valid: (H, W) bool, pixels whose flow passed the forward-backward check and lands at least
+            ``border_fraction`` of the image width inside the previous frame.
         threshold: residual above which a pixel counts as independently moving this frame.
         fundamental: (3, 3) F with x_prev^T F x_cur = 0, or None when the geometry was not estimable.
         homography: (3, 3) H with x_prev ~ H x_cur when the dominant motion is a homography (the identity
@@ -103,12 +105,15 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     grid = pixel_grid(h, w)
     # Large flows (near objects under forward motion) carry proportionally larger round-trip error.
     tolerance = config.fb_max_px + config.fb_max_fraction * np.hypot(to_previous[..., 0], to_previous[..., 1])
-    valid = forward_backward_error(to_previous, to_current) < tolerance
+    checked = forward_backward_error(to_previous, to_current) < tolerance
+    # The fit still samples the border's matches: they are few, RANSAC drops the wrong ones, and matches spread
+    # wide condition F best; only the per-pixel evidence leaves them out.
+    valid = checked & lands_inside(to_previous, config.border_fraction * w) if config.border_fraction > 0 else checked
     residual = np.zeros((h, w), dtype=np.float32)
     empty = EpipolarResidual(residual, valid, np.inf, None, 0.0)
 
     step = config.grid_step
-    sample_ok = valid[::step, ::step]
+    sample_ok = checked[::step, ::step]
     points = grid[::step, ::step][sample_ok]
     matches = points + to_previous[::step, ::step][sample_ok]
     if len(points) < config.min_inliers:

@@ -1,4 +1,5 @@
-"""Dense flow fields as arrays: the pixel grid they are defined on and their round-trip (forward-backward) error.
+"""Dense flow fields as arrays: the pixel grid they are defined on, their round-trip (forward-backward) error
+and where they land.
 
 Pure numpy/OpenCV, shared by the per-pixel tests in core/ and the front-end that computes the flows.
 """
@@ -37,3 +38,15 @@ def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndar
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
     round_trip = forward + back_at_landing
     return np.hypot(round_trip[..., 0], round_trip[..., 1])
+
+
+def lands_inside(flow: np.ndarray, margin: float) -> np.ndarray:
+    """(H, W) bool: pixels whose ``flow`` (H, W, 2) lands at least ``margin`` pixels inside the image.
+
+    Near the target's border a dense flow's patches are clipped and its coarse levels extrapolate, so the
+    matches that land there are guesses (and content entering the view has no match at all).
+    """
+    h, w = flow.shape[:2]
+    landing = pixel_grid(h, w) + flow
+    x, y = landing[..., 0], landing[..., 1]
+    return (x >= margin) & (x <= w - 1 - margin) & (y >= margin) & (y <= h - 1 - margin)
