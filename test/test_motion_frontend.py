@@ -9,7 +9,8 @@ import numpy as np
 
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig, Observation, hull_mask, linked_groups
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, hull_mask,
+                                      linked_groups, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -165,6 +166,74 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestCarried:
+    def test_a_mask_follows_the_flows_after_its_frame(self):
+        mask = np.zeros((30, 40), bool)
+        mask[10:20, 10:20] = True
+        step = np.zeros((30, 40, 2), np.float32)
+        step[..., 0] = -3.0  # each frame's pixel came from 3 px to the left: content moves right
+        moved = carried(mask, 4, ((4, step), (5, step), (6, step)))  # frame 4's own flow is not applied
+        assert moved.shape == mask.shape and moved.dtype == bool
+        assert moved[10:20, 16:26].all() and moved.sum() == mask.sum()
+
+    def test_no_later_flow_leaves_it_as_it_is(self):
+        mask = np.eye(8, dtype=bool)
+        assert np.array_equal(carried(mask, 3, ((2, np.ones((8, 8, 2), np.float32)),)), mask)
+
+
+class TestTouching:
+    def test_only_the_regions_a_seed_touches(self):
+        candidates = np.zeros((20, 20), bool)
+        candidates[2:6, 2:6] = candidates[12:16, 12:16] = True
+        seeds = np.zeros((20, 20), bool)
+        seeds[5, 5] = seeds[0, 19] = True  # one on the first region, one on nothing
+        kept = touching(candidates, seeds)
+        assert kept.shape == (20, 20) and kept.dtype == bool
+        assert kept[2:6, 2:6].all() and kept.sum() == 16
+
+    def test_diagonal_neighbours_are_one_region_and_no_seed_keeps_nothing(self):
+        candidates = np.eye(6, dtype=bool)
+        seeds = np.zeros((6, 6), bool)
+        seeds[0, 0] = True
+        assert np.array_equal(touching(candidates, seeds), candidates)
+        assert not touching(candidates, np.zeros_like(seeds)).any()
+
+
+class TestDenseHysteresis:
+    """Of the last refit's dense mask, the regions that touch this refit's are kept: a mover whose residual
+    falls under the threshold over most of its body for a frame stays whole, a lone blob is not repeated."""
+
+    @staticmethod
+    def _two_refits(hysteresis: bool):
+        backward, _, K = pan_follow_flow(degrees=0.5)
+        gray = np.random.default_rng(0).integers(0, 255, backward.shape[:2]).astype(np.uint8)
+        body = np.zeros(backward.shape[:2], bool)
+        body[60:100, 20:100] = True  # away from the followed car that pan_follow_flow holds
+        blob = np.zeros_like(body)
+        blob[25:45, 230:260] = True
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense_width=backward.shape[1],
+                                                        dense_hysteresis=hysteresis))
+        masks = []
+        for index, moving in ((1, body | blob), (2, np.zeros_like(body))):
+            flow = backward.copy()
+            flow[moving, 1] += 3.0  # off the epipolar lines: the residual test flags these pixels
+            if index == 2:
+                flow[75:85, 50:70, 1] += 3.0  # a part of the body only
+            observation = Observation(index, None, None, np.zeros(0, np.int64), K, False, (flow, -flow), gray,
+                                      body.shape, backward=((index, flow),))
+            masks.append(front_end.refit(observation).dense)
+        return masks, body, blob
+
+    def test_the_body_is_kept_and_the_blob_is_not(self):
+        (first, second), body, blob = self._two_refits(True)
+        assert first[body].mean() > 0.6 and first[blob].mean() > 0.6
+        assert second[body].mean() > 0.7 and not second[blob].any()  # the body as the first refit had it
+
+    def test_without_it_only_this_refits_evidence(self):
+        (_, second), body, _ = self._two_refits(False)
+        assert second[body].mean() < 0.1
 
 
 class TestBorder:
