@@ -31,12 +31,14 @@ def ros_domain() -> int:
 
 
 def textured_frames(n: int, height: int = 188, width: int = 621, seed: int = 0,
-                    mover_speed_px: int = 3, stop: int | None = None) -> list[np.ndarray]:
+                    mover_speed_px: int = 3, stop: int | None = None,
+                    block_x: int | None = None) -> list[np.ndarray]:
     """Frames of a camera panning over a random texture, with a block sliding down across it.
 
     The background shifts 2 px left per frame (one rigid motion, horizontal epipolar lines); the block
     moves ``mover_speed_px`` px down per frame, off those lines, so it is an independent motion. With
-    ``stop`` it parks at that frame: from then on it rides with the background.
+    ``stop`` it parks at that frame: from then on it rides with the background. ``block_x``: the block's left
+    edge (default a quarter of the width).
     """
     rng = np.random.default_rng(seed)
     texture = cv2.GaussianBlur((rng.random((height, width + 4 * n)) * 255).astype(np.uint8), (5, 5), 0)
@@ -45,7 +47,8 @@ def textured_frames(n: int, height: int = 188, width: int = 621, seed: int = 0,
     for i in range(n):
         frame = texture[:, 2 * i:2 * i + width].copy()
         parked = 0 if stop is None else max(0, i - stop)
-        x, y = width // 4 - 2 * parked, height // 6 + mover_speed_px * (i - parked)
+        x = (width // 4 if block_x is None else block_x) - 2 * parked
+        y = height // 6 + mover_speed_px * (i - parked)
         frame[y:y + block.shape[0], x:x + block.shape[1]] = block[:height - y]
         frames.append(np.repeat(frame[..., None], 3, axis=2))
     return frames

@@ -9,8 +9,8 @@ import numpy as np
 
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, hull_mask,
-                                      linked_groups, touching)
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, away_from_border, carried,
+                                      hull_mask, linked_groups, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -166,6 +166,34 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestAwayFromBorder:
+    def test_shape_and_known_values(self):
+        points = np.array([[5.0, 5.0], [2.0, 10.0], [17.0, 10.0], [10.0, 2.9], [10.0, 17.0]])
+        inside = away_from_border(points, (20, 20), 3.0)  # x and y must lie in [3, 16]
+        assert inside.shape == (5,) and inside.dtype == bool
+        assert inside.tolist() == [True, False, False, False, False]
+
+    def test_no_margin_keeps_the_image(self):
+        points = np.array([[0.0, 0.0], [19.0, 9.0], [20.0, 5.0]])
+        assert away_from_border(points, (10, 20), 0.0).tolist() == [True, True, False]
+
+
+class TestTrackBorder:
+    """Flagged tracks near the image's border are not drawn; the same block inside is."""
+
+    @staticmethod
+    def _moving_tracks(track_border: float, x: int) -> int:
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, track_border=track_border))
+        for frame in textured_frames(6, height=400, block_x=x):
+            front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+        return len(front_end.moving_track_points)
+
+    def test_a_block_at_the_left_border_is_drawn_only_without_the_band(self):
+        # The block is 77 px wide at the left edge; a band of 13 % of the width (80 px) holds all of it.
+        assert self._moving_tracks(0.0, 0) > 10 and self._moving_tracks(0.13, 0) == 0
+        assert self._moving_tracks(0.13, 621 // 4) > 10  # away from the border it is drawn
 
 
 class TestCarried:

@@ -50,10 +50,11 @@ def test_undecodable_frames_are_skipped_and_reported(tmp_path):
 
 def test_real_kitti_street_is_mostly_left_usable(tmp_path):
     """The first 40 real KITTI frames (odometry 07, a residential street, few movers): every frame gets a mask
-    and almost nothing static is flagged. Measured: 0.92 % of the pixels on average (2026-12-02 night; 0.85 %
-    before the dense mask's hysteresis): a pedestrian leaving a shop (frames 12-20, 1-2 %) and, at the corner
-    of frames 26-32, a sign and a band of wall (0.8-3.6 % of those frames; 2.4-5.0 % before matches landing
-    near the border were left out of the dense evidence). The map built from these frames loses 2-3 % of its
+    and almost nothing static is flagged. Measured: 0.66 % of the pixels on average (2026-12-02 night; 1.14 %
+    that evening, before matches landing near the border were left out of the dense evidence, the dense mask
+    got its hysteresis and moving tracks near the border were no longer drawn): a pedestrian leaving a shop
+    (frames 12-20, 1-2 %) and, at the corner of frames 26-32, a sign on its post (0.4-1.7 % of those frames;
+    2.4-5.0 % that evening). The map built from these frames loses 2-3 % of its
     features to the masks (README, `moseg eval map`)."""
     from conftest import shared_data
     from moseg_ros.io.kitti import kitti_to_bag

@@ -13,7 +13,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
   ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
-  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it. The flow view then grows each hull
+  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it; flagged tracks within
+  ``track_border`` of the image's border are not drawn. The flow view then grows each hull
   over the pixels whose dense flow follows the group's own flow model, and trims what follows the
   background's around it (``object_flow``, core/object_flow.py).
 - dense: DIS flow at ``dense_width`` between the frame and the one ``dense_gap`` frames back, forward-backward
@@ -22,8 +23,7 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   texture where the flow is at most ``smooth_max_flow`` (DIS carries a small motion from textured edges into
   the smooth body of an animal or a car, but not a large one: the near road of a driving camera), and pixels
   behind infinity by more than ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the
-  smooth body of an object the
-  camera follows has a flow of about zero, which its few tracks cannot fill).
+  smooth body of an object the camera follows has a flow of about zero, which its few tracks cannot fill).
 
 The dense mask holds on for a frame where it goes on: of the last refit's dense mask, carried along the flow,
 the regions that touch this refit's are kept (hysteresis, as in Canny's edges: a mover's residual flickers
@@ -80,8 +80,8 @@ class MotionFrontEndConfig:
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
-    # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: in a
-    # turn (KITTI 07's corner, 3-4 degrees a frame) 18-63 % of them came out moving against 1-2 % elsewhere.
+    # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: DIS
+    # extrapolates there, and in a turn the band entering the view came out moving (README).
     dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
         residual_threshold_px=1.0, residual_noise_factor=5.0, border_fraction=0.05))
     min_region_area: int = 80
@@ -90,10 +90,13 @@ class MotionFrontEndConfig:
     smooth_max_flow: float = 8.0
     close_px: int = 5
     dense_cheir_px: float = 1.0
-    # Keep the last refit's dense regions that touch this one's (see the module's docstring). Measured: DAVIS J
-    # 0.392 -> 0.404 (recall 75.7 -> 80.3 %: dog, breakdance, parkour), KT3DMoSeg static points 3.14 -> 3.39 %;
-    # keeping all of the last mask: J 0.405 but 3.51 %.
+    # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
+    # whole last mask, which flagged more static pixels for the same recall (README).
     dense_hysteresis: bool = True
+    # Moving tracks closer to the image's border than this share of its width are not drawn: there KLT's window
+    # and pyramid are clipped and what enters or leaves the view has half its support (KITTI 07's remaining
+    # false hulls in its turn were there; README).
+    track_border: float = 0.03
     # The flow view around each hull (core/object_flow.py): grows smooth bodies, trims swallowed background.
     # None: hulls as drawn.
     object_flow: ObjectFlowConfig | None = field(default_factory=ObjectFlowConfig)
@@ -159,6 +162,13 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         view = mask[y0:y0 + h, x0:x0 + w]
         view |= local[:view.shape[0], :view.shape[1]]
     return mask.astype(bool)
+
+
+def away_from_border(points: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
+    """(N,) bool: which of the (N, 2) points (x, y) lie at least ``margin`` pixels inside an image of ``shape``
+    (H, W)."""
+    x, y = points[:, 0], points[:, 1]
+    return (x >= margin) & (x <= shape[1] - 1 - margin) & (y >= margin) & (y <= shape[0] - 1 - margin)
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
@@ -337,11 +347,11 @@ class MotionFrontEnd:
         """Moving regions of the current frame from ``refit`` (this frame's or an older one; None: nothing)."""
         with self.stages("regions"):
             small = self._grays[-1].shape
-            flagged = refit.flagged if refit is not None else np.zeros(0, dtype=np.int64)
-            here = np.isin(self._points.ids, flagged)
-            self.moving_track_points = self._points.points[here]
+            flagged = np.isin(self._points.ids, refit.flagged if refit is not None else np.zeros(0, dtype=np.int64))
             scale = small[1] / self._tracking_shape[1]
-            settled = np.isin(self._points.ids, self._frames[0][0]) & ~here
+            here = flagged & away_from_border(self._points.points * scale, small, self.config.track_border * small[1])
+            self.moving_track_points = self._points.points[here]
+            settled = np.isin(self._points.ids, self._frames[0][0]) & ~flagged
             link_px = self.config.link_fraction * small[1]
             points = self.moving_track_points * scale
             group = linked_groups(points, link_px, self.config.min_group)
