@@ -9,8 +9,9 @@ import numpy as np
 
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, away_from_border, carried,
-                                      hull_mask, linked_groups, touching)
+from moseg_ros.core.flow_field import away_from_border
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, hull_mask,
+                                      linked_groups, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:

@@ -46,7 +46,11 @@ def lands_inside(flow: np.ndarray, margin: float) -> np.ndarray:
     Near the target's border a dense flow's patches are clipped and its coarse levels extrapolate, so the
     matches that land there are guesses (and content entering the view has no match at all).
     """
-    h, w = flow.shape[:2]
-    landing = pixel_grid(h, w) + flow
-    x, y = landing[..., 0], landing[..., 1]
-    return (x >= margin) & (x <= w - 1 - margin) & (y >= margin) & (y <= h - 1 - margin)
+    return away_from_border(pixel_grid(*flow.shape[:2]) + flow, flow.shape[:2], margin)
+
+
+def away_from_border(points: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
+    """(...) bool: which of the (..., 2) points (x, y) lie at least ``margin`` pixels inside an image of ``shape``
+    (H, W)."""
+    x, y = points[..., 0], points[..., 1]
+    return (x >= margin) & (x <= shape[1] - 1 - margin) & (y >= margin) & (y <= shape[0] - 1 - margin)

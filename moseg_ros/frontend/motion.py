@@ -45,7 +45,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
-from moseg_ros.core.flow_field import pixel_grid
+from moseg_ros.core.flow_field import away_from_border, pixel_grid
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, behind_infinity, guessed_camera_matrix,
                                          moving_tracks, pair_evidence)
@@ -162,13 +162,6 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         view = mask[y0:y0 + h, x0:x0 + w]
         view |= local[:view.shape[0], :view.shape[1]]
     return mask.astype(bool)
-
-
-def away_from_border(points: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
-    """(N,) bool: which of the (N, 2) points (x, y) lie at least ``margin`` pixels inside an image of ``shape``
-    (H, W)."""
-    x, y = points[:, 0], points[:, 1]
-    return (x >= margin) & (x <= shape[1] - 1 - margin) & (y >= margin) & (y <= shape[0] - 1 - margin)
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
