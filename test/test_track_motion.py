@@ -13,8 +13,8 @@ import pytest
 from conftest import pan_follow_flow
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity, far_behind,
                                          footing_excess, ground_parallax_ratio, ground_slope,
-                                         guessed_camera_matrix, moving_tracks, pair_evidence, pair_residual,
-                                         pair_residuals, row_medians, signed_parallax)
+                                         guessed_camera_matrix, may_be_planar, moving_tracks, pair_evidence,
+                                         pair_residual, pair_residuals, row_medians, signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -133,6 +133,40 @@ def test_a_planar_pan_uses_the_homography_so_the_mover_stands_out():
     x2[:30] = x1[:30] + [0.0, 3.0]
     distance = pair_residual(x1, x2 + rng.normal(0, 0.1, x2.shape))
     assert np.median(distance[:30]) > 2.0 and np.median(distance[30:]) < 0.3
+
+
+class TestMayBePlanar:
+    """The quick homography screen that spares the full fit where no plane can compete with F."""
+
+    @staticmethod
+    def _pan(n: int = 400):
+        rng = np.random.default_rng(4)
+        x1 = rng.uniform([0, 0], [600, 200], (n, 2))
+        return x1, x1 + [-2.0, 0.0] + rng.normal(0, 0.1, (n, 2))
+
+    def test_a_pan_may_be_planar(self):
+        x1, x2 = self._pan()
+        assert may_be_planar(x1, x2, np.ones(len(x1), dtype=bool))
+
+    def test_a_street_with_depth_is_not(self):
+        tracks, mover = street()
+        x1, x2 = tracks[~mover, 0].astype(np.float64), tracks[~mover, 2].astype(np.float64)
+        assert not may_be_planar(x1, x2, np.ones(len(x1), dtype=bool))
+
+    def test_the_screen_off_or_without_a_quick_model_leaves_it_to_the_full_fit(self, monkeypatch):
+        tracks, mover = street()
+        x1, x2 = tracks[~mover, 0].astype(np.float64), tracks[~mover, 2].astype(np.float64)
+        inliers = np.ones(len(x1), dtype=bool)
+        assert may_be_planar(x1, x2, inliers, TrackMotionConfig(homography_screen=0.0))
+        monkeypatch.setattr(cv2, "findHomography", lambda *args: (None, None))
+        assert may_be_planar(x1, x2, inliers)
+
+    def test_the_screened_street_gives_the_same_evidence_as_the_full_fit(self):
+        tracks, _ = street()
+        screened = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
+        full = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(homography_screen=0.0), K)
+        np.testing.assert_array_equal(screened.distance, full.distance)
+        np.testing.assert_array_equal(screened.signed, full.signed)
 
 
 def car_ahead(frames: int = 6, seed: int = 0):

@@ -32,11 +32,12 @@ def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px
     return _checked(model, inliers)
 
 
-def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float) -> Fit:
+def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float,
+                      max_iterations: int = 2000, confidence: float = 0.995) -> Fit:
     """H with x2 ~ H x1 and its (N,) bool inliers, robustly fitted to (N, 2) float32/64 correspondences;
-    (None, None) when OpenCV finds no model or fails on the data."""
+    (None, None) when OpenCV finds no model or fails on the data. The defaults are OpenCV's."""
     try:
-        model, inliers = cv2.findHomography(x1, x2, method, threshold_px)
+        model, inliers = cv2.findHomography(x1, x2, method, threshold_px, None, max_iterations, confidence)
     except cv2.error:
         return None, None
     return _checked(model, inliers)

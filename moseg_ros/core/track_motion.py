@@ -87,6 +87,13 @@ class TrackMotionConfig:
     guessed_behind_share: float = 0.25
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
+    # The full homography fit (MAGSAC++, the costliest fit of a refit on a street) runs only where a quick one
+    # (plain RANSAC, ``screen_iterations``, on every ``screen_stride``-th track) explains at least this share
+    # of F's inliers: a street's dominant plane holds a third of them, and no pair that came out planar on
+    # KITTI or DAVIS screened below three quarters (README).
+    homography_screen: float = 0.5
+    screen_stride: int = 4
+    screen_iterations: int = 50
     ground_ratio: float = 0.3
     ground_min_px: float = 1.0
     ground_bands: int = 12
@@ -460,8 +467,8 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     fundamental, f_inliers = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
     if fundamental is None:
         return None
-    homography, h_inliers = (homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px) if planar_check
-                             else (None, None))
+    homography, h_inliers = (homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
+                             if planar_check and may_be_planar(x1, x2, f_inliers, config) else (None, None))
     f_squared = sampson_distance(fundamental[None], x1, x2)[0]
     planar = False
     if homography is not None:
@@ -486,6 +493,20 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
     signed = guessed_signs(x1, parallax, config.guessed_behind_share) if guessed else parallax.signed
     return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope))
+
+
+def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
+                  config: TrackMotionConfig = TrackMotionConfig()) -> bool:
+    """Whether a homography might explain about as many of the (N, 2) correspondences ``x1`` -> ``x2`` as F
+    does (its (N,) bool ``f_inliers``): a quick RANSAC homography on every ``screen_stride``-th one explains at
+    least ``homography_screen`` of F's inliers among them. False tells the caller to skip the full fit."""
+    if config.homography_screen <= 0:
+        return True
+    step = max(1, config.screen_stride)
+    model, inliers = homography_ransac(x1[::step], x2[::step], cv2.RANSAC, config.ransac_px,
+                                       config.screen_iterations, 0.99)
+    # No quick model decides nothing: the full fit does.
+    return model is None or bool(inliers.sum() >= config.homography_screen * f_inliers[::step].sum())
 
 
 def pair_residual(x1: np.ndarray, x2: np.ndarray,
