@@ -10,8 +10,8 @@ import numpy as np
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, hull_mask,
-                                      linked_groups, touching)
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, dense_support,
+                                      hull_mask, linked_groups, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -375,3 +375,74 @@ def test_the_window_s_long_pair_decides_a_followed_car_at_the_focus_of_expansion
     flagged = np.isin(np.arange(len(is_car)), _refit_stream(points, K, long_pairs=True))
     assert flagged[is_car].mean() > short_only[is_car].mean() + 0.25  # 0.75
     assert flagged[~is_car].mean() < 0.01
+
+
+class TestDenseSupport:
+    def test_shape_and_known_values(self):
+        residual = np.zeros((20, 30), dtype=np.float32)
+        residual[10, 10] = 2.0
+        points = np.array([[10, 10], [12, 11], [13, 10], [25, 5], [-4, 10]], dtype=np.float32)
+        support = dense_support(points, residual, 1.0, reach=2)
+        assert support.dtype == bool and support.tolist() == [True, True, False, False, False]
+
+    def test_no_reach_reads_the_pixel_and_the_level_is_inclusive(self):
+        residual = np.zeros((20, 30), dtype=np.float32)
+        residual[10, 10] = 2.0
+        points = np.array([[10, 10], [11, 10]], dtype=np.float32)
+        assert dense_support(points, residual, 2.0, reach=0).tolist() == [True, False]
+
+
+class TestDenseCorroboration:
+    """A track's epipolar distance counts where the dense residual near it agrees: KLT drifting at a near edge
+    (a tree trunk against the far street) is let go; a mover that the dense flow sees too is kept."""
+
+    SIZE = (240, 640)
+    CENTRE = np.array([320.0, 120.0])
+
+    @classmethod
+    def _scale(cls, xy: np.ndarray) -> np.ndarray:
+        """Per-point expansion of a camera driving forward over a scene whose depth varies smoothly."""
+        return 0.02 + 0.03 * xy[..., 1] / cls.SIZE[0] + 0.01 * np.sin(xy[..., 0] / 50.0)
+
+    @classmethod
+    def _across(cls, xy: np.ndarray) -> np.ndarray:
+        """Unit vectors across the epipolar lines (perpendicular to the radial flow) at ``xy``."""
+        radial = xy - cls.CENTRE
+        radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 1e-9)
+        return np.stack([-radial[..., 1], radial[..., 0]], axis=-1)
+
+    @classmethod
+    def _refit(cls, corroboration: float):
+        h, w = cls.SIZE
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        grid = np.stack([xx, yy], axis=-1)
+        backward = -(grid - cls.CENTRE) * cls._scale(grid)[..., None]  # now -> the frame before
+        mover = (np.abs(xx - 150) < 30) & (np.abs(yy - 170) < 30)
+        backward[mover] += 1.5 * cls._across(grid[mover])
+        rng = np.random.default_rng(0)
+        static = rng.uniform([20, 20], [w - 20, h - 20], (600, 2))
+        static = static[~((np.abs(static[:, 0] - 150) < 40) & (np.abs(static[:, 1] - 170) < 40))]
+        drifting = rng.uniform([430, 40], [470, 200], (40, 2))
+        on_mover = rng.uniform([125, 145], [175, 195], (40, 2))
+        now = np.vstack([static, drifting, on_mover])
+        before = now - 2.0 * (now - cls.CENTRE) * cls._scale(now)[:, None]  # two frames back
+        before[len(static):len(static) + 40] += 2.0 * cls._across(now[len(static):len(static) + 40])  # KLT drift
+        before[len(static) + 40:] += 2.5 * cls._across(now[len(static) + 40:])
+        ids = np.arange(len(now))
+        base = MotionFrontEndConfig(dense_width=w, dense_corroboration=corroboration)
+        config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf))
+        K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
+        gray = rng.integers(0, 255, cls.SIZE).astype(np.uint8)
+        observation = Observation(2, (ids, before.astype(np.float32), ids, now.astype(np.float32)), None, ids, K,
+                                  False, (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE)
+        flagged = np.isin(ids, MotionFrontEnd(config).refit(observation).flagged)
+        return flagged[:len(static)], flagged[len(static):len(static) + 40], flagged[len(static) + 40:]
+
+    def test_the_drifting_tracks_are_let_go_and_the_mover_is_kept(self):
+        static, drifting, mover = self._refit(MotionFrontEndConfig().dense_corroboration)
+        assert not drifting.any()
+        assert mover.mean() > 0.9 and static.mean() < 0.01
+
+    def test_without_it_the_drifting_tracks_are_flagged(self):
+        static, drifting, mover = self._refit(0.0)
+        assert drifting.mean() > 0.9 and mover.mean() > 0.9 and static.mean() < 0.01

@@ -119,6 +119,18 @@ class TestMovingTracks:
         residuals = np.array([[0.1, 0.2, 9.0], [0.2, 0.1, 0.2], [0.3, 0.2, 0.1]], dtype=np.float32)
         assert not moving_tracks(residuals).any()
 
+    def test_an_uncorroborated_distance_flags_only_when_evident(self):
+        # The median is 0.3 px, so the threshold is the 1 px floor and 3 px is evident.
+        residuals = np.array([[0.2], [0.3], [0.2], [0.3], [0.3], [1.5], [1.5], [3.5]], dtype=np.float32)
+        corroborated = np.array([True, True, True, True, True, True, False, False])
+        config = TrackMotionConfig(factor=3.0, floor_px=1.0, evident_factor=3.0)
+        assert moving_tracks(residuals, config, corroborated=corroborated).tolist() == [
+            False] * 5 + [True, False, True]
+        signed = np.full((8, 1), 5.0, dtype=np.float32)
+        signed[1] = -4.0  # behind infinity: cheirality needs no corroboration
+        assert np.flatnonzero(moving_tracks(residuals, config, signed=signed,
+                                            corroborated=np.zeros(8, bool))).tolist() == [1, 7]
+
     @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
     def test_nothing_measured_flags_nothing(self, shape):
         assert not moving_tracks(np.full(shape, np.nan, dtype=np.float32)).any()

@@ -9,6 +9,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
   The ground and footing tests also get the pair of the window's first and last frames: near the focus of
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
+  The epipolar distance counts only where the dense residual near the track corroborates it, or where it is
+  far above its threshold (``dense_corroboration``): KLT drifts where its window straddles a near edge.
   A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
@@ -44,7 +46,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from moseg_ros.core.baseline import BaselineConfig, epipolar_residual
+from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
 from moseg_ros.core.flow_field import away_from_border, pixel_grid
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, behind_infinity, guessed_camera_matrix,
@@ -84,6 +86,13 @@ class MotionFrontEndConfig:
     # extrapolates there, and in a turn the band entering the view came out moving (README).
     dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
         residual_threshold_px=1.0, residual_noise_factor=5.0, border_fraction=0.05))
+    # A track's epipolar distance counts only where the dense residual within ``corroboration_reach`` pixels of it
+    # (at the dense width) reaches this share of the dense threshold: KLT drifts where its window straddles a
+    # near object's edge (a tree trunk against the far street) and the dense flow there does not (README).
+    # The cheirality, ground and footing tests need no corroboration: inside the epipolar plane the dense
+    # residual is zero. 0: off.
+    dense_corroboration: float = 0.25
+    corroboration_reach: int = 2
     min_region_area: int = 80
     min_texture: float = 1e-3
     texture_reach: int = 12
@@ -162,6 +171,16 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         view = mask[y0:y0 + h, x0:x0 + w]
         view |= local[:view.shape[0], :view.shape[1]]
     return mask.astype(bool)
+
+
+def dense_support(points: np.ndarray, residual: np.ndarray, level: float, reach: int) -> np.ndarray:
+    """(N,) bool: whether the (h, w) ``residual`` reaches ``level`` within ``reach`` pixels (a square) of each of
+    the (N, 2) ``points`` (x, y at the residual's size; points outside take the nearest border pixel)."""
+    if reach > 0:
+        residual = cv2.dilate(residual, np.ones((2 * reach + 1, 2 * reach + 1), dtype=np.uint8))
+    h, w = residual.shape
+    xy = np.clip(np.rint(points).astype(np.int64), 0, [w - 1, h - 1])
+    return residual[xy[:, 1], xy[:, 0]] >= level
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
@@ -328,12 +347,16 @@ class MotionFrontEnd:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
         test with sticky flags, and the dense residual mask; the Refit's ``stages`` times fit and dense_fit."""
         stages = Stages()
-        with stages("fit"):
-            flagged = self._flagged(observation)
-        dense = None
+        evidence = None
         if observation.flows is not None:
             with stages("dense_fit"):
-                dense = self._held(self._dense_mask(observation), observation)
+                evidence = epipolar_residual(*observation.flows, self.config.dense_baseline)
+        with stages("fit"):
+            flagged = self._flagged(observation, evidence)
+        dense = None
+        if evidence is not None:
+            with stages("dense_fit"):
+                dense = self._held(self._dense_mask(observation, evidence), observation)
         return Refit(observation.index, flagged, dense, stages.seconds)
 
     def apply(self, refit: Refit | None) -> np.ndarray:
@@ -388,8 +411,10 @@ class MotionFrontEnd:
             return dense
         return dense | touching(carried(last[1], last[0], observation.backward), dense)
 
-    def _flagged(self, observation: Observation) -> np.ndarray:
-        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows)."""
+    def _flagged(self, observation: Observation, dense: EpipolarResidual | None = None) -> np.ndarray:
+        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); with the
+        frame's ``dense`` evidence, a track's epipolar distance counts only where the dense residual near it
+        corroborates it (``dense_corroboration``)."""
         newest = None
         if observation.pair is not None:
             newest = self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
@@ -419,8 +444,25 @@ class MotionFrontEnd:
             for table, values in zip(tables[2:], (evidence.ground, evidence.footing)):
                 if values is not None:
                     table[rows, -1] = values[known]
-        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:])]
+        corroborated = self._corroborated(ids, observation, dense)
+        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:], corroborated=corroborated)]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
+
+    def _corroborated(self, ids: np.ndarray, observation: Observation,
+                      evidence: EpipolarResidual | None) -> np.ndarray | None:
+        """(len(ids),) bool: the tracks of sorted ``ids`` that the dense residual corroborates where they are
+        now (those not seen now, True); None without dense evidence or with the check off."""
+        share = self.config.dense_corroboration
+        if evidence is None or share <= 0 or observation.pair is None or not np.isfinite(evidence.threshold):
+            return None
+        _, _, now_ids, now = observation.pair
+        scale = evidence.residual.shape[1] / observation.tracking_shape[1]
+        near = dense_support(now * scale, evidence.residual, share * evidence.threshold,
+                             self.config.corroboration_reach)
+        _, rows, columns = np.intersect1d(ids, now_ids, assume_unique=True, return_indices=True)
+        keep = np.ones(ids.size, dtype=bool)
+        keep[rows] = near[columns]
+        return keep
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray, index: int) -> np.ndarray:
         """Count one more window for each living flagged track (flagged at frame ``index``); returns the ids
@@ -466,10 +508,9 @@ class MotionFrontEnd:
         slow = np.hypot(flow[..., 0], flow[..., 1]) <= self.config.smooth_max_flow
         return (textured > 0) | (near & slow)
 
-    def _dense_mask(self, observation: Observation) -> np.ndarray:
-        backward, forward = observation.flows
+    def _dense_mask(self, observation: Observation, evidence: EpipolarResidual) -> np.ndarray:
+        backward, _ = observation.flows
         gray = observation.gray
-        evidence = epipolar_residual(backward, forward, self.config.dense_baseline)
         if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
