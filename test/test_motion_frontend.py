@@ -10,7 +10,7 @@ import numpy as np
 from conftest import pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, dense_support,
+from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, dense_near,
                                       hull_mask, linked_groups, touching)
 
 
@@ -377,19 +377,19 @@ def test_the_window_s_long_pair_decides_a_followed_car_at_the_focus_of_expansion
     assert flagged[~is_car].mean() < 0.01
 
 
-class TestDenseSupport:
+class TestDenseNear:
     def test_shape_and_known_values(self):
         residual = np.zeros((20, 30), dtype=np.float32)
         residual[10, 10] = 2.0
-        points = np.array([[10, 10], [12, 11], [13, 10], [25, 5], [-4, 10]], dtype=np.float32)
-        support = dense_support(points, residual, 1.0, reach=2)
-        assert support.dtype == bool and support.tolist() == [True, True, False, False, False]
+        residual[10, 12] = 1.0
+        points = np.array([[10, 10], [12, 11], [14, 10], [25, 5], [-4, 10]], dtype=np.float32)
+        near = dense_near(points, residual, reach=2)
+        assert near.shape == (5,) and near.tolist() == [2.0, 2.0, 1.0, 0.0, 0.0]
 
-    def test_no_reach_reads_the_pixel_and_the_level_is_inclusive(self):
+    def test_no_reach_reads_the_pixel(self):
         residual = np.zeros((20, 30), dtype=np.float32)
         residual[10, 10] = 2.0
-        points = np.array([[10, 10], [11, 10]], dtype=np.float32)
-        assert dense_support(points, residual, 2.0, reach=0).tolist() == [True, False]
+        assert dense_near(np.array([[10, 10], [11, 10]], np.float32), residual, reach=0).tolist() == [2.0, 0.0]
 
 
 class TestDenseCorroboration:
@@ -412,13 +412,13 @@ class TestDenseCorroboration:
         return np.stack([-radial[..., 1], radial[..., 0]], axis=-1)
 
     @classmethod
-    def _refit(cls, corroboration: float):
+    def _refit(cls, corroboration: float, dense_offset: float = 1.5, floor: float = 0.25):
         h, w = cls.SIZE
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
         grid = np.stack([xx, yy], axis=-1)
         backward = -(grid - cls.CENTRE) * cls._scale(grid)[..., None]  # now -> the frame before
         mover = (np.abs(xx - 150) < 30) & (np.abs(yy - 170) < 30)
-        backward[mover] += 1.5 * cls._across(grid[mover])
+        backward[mover] += dense_offset * cls._across(grid[mover])
         rng = np.random.default_rng(0)
         static = rng.uniform([20, 20], [w - 20, h - 20], (600, 2))
         static = static[~((np.abs(static[:, 0] - 150) < 40) & (np.abs(static[:, 1] - 170) < 40))]
@@ -429,8 +429,9 @@ class TestDenseCorroboration:
         before[len(static):len(static) + 40] += 2.0 * cls._across(now[len(static):len(static) + 40])  # KLT drift
         before[len(static) + 40:] += 2.5 * cls._across(now[len(static) + 40:])
         ids = np.arange(len(now))
-        base = MotionFrontEndConfig(dense_width=w, dense_corroboration=corroboration)
-        config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf))
+        base = MotionFrontEndConfig(dense_width=w, corroboration_floor=floor)
+        config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf,
+                                                    corroboration=corroboration))
         K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
         gray = rng.integers(0, 255, cls.SIZE).astype(np.uint8)
         observation = Observation(2, (ids, before.astype(np.float32), ids, now.astype(np.float32)), None, ids, K,
@@ -439,9 +440,17 @@ class TestDenseCorroboration:
         return flagged[:len(static)], flagged[len(static):len(static) + 40], flagged[len(static) + 40:]
 
     def test_the_drifting_tracks_are_let_go_and_the_mover_is_kept(self):
-        static, drifting, mover = self._refit(MotionFrontEndConfig().dense_corroboration)
+        static, drifting, mover = self._refit(TrackMotionConfig().corroboration)
         assert not drifting.any()
         assert mover.mean() > 0.9 and static.mean() < 0.01
+
+    def test_a_mover_whose_dense_residual_is_a_fraction_of_its_tracks_is_kept_by_the_floor(self):
+        """0.4 px a frame against its tracks' 2.5 px over two: below three quarters of them, above a quarter of
+        the dense threshold (1 px)."""
+        _, drifting, mover = self._refit(TrackMotionConfig().corroboration, dense_offset=0.4)
+        assert mover.mean() > 0.9 and not drifting.any()
+        _, _, mover = self._refit(TrackMotionConfig().corroboration, dense_offset=0.4, floor=np.inf)
+        assert not mover.any()
 
     def test_without_it_the_drifting_tracks_are_flagged(self):
         static, drifting, mover = self._refit(0.0)

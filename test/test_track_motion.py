@@ -4,6 +4,7 @@ parallax pass, independent movers fail."""
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import replace
 import warnings
 
 import cv2
@@ -121,15 +122,16 @@ class TestMovingTracks:
 
     def test_an_uncorroborated_distance_flags_only_when_evident(self):
         # The median is 0.3 px, so the threshold is the 1 px floor and 3 px is evident.
-        residuals = np.array([[0.2], [0.3], [0.2], [0.3], [0.3], [1.5], [1.5], [3.5]], dtype=np.float32)
-        corroborated = np.array([True, True, True, True, True, True, False, False])
-        config = TrackMotionConfig(factor=3.0, floor_px=1.0, evident_factor=3.0)
-        assert moving_tracks(residuals, config, corroborated=corroborated).tolist() == [
-            False] * 5 + [True, False, True]
-        signed = np.full((8, 1), 5.0, dtype=np.float32)
+        residuals = np.array([[0.2], [0.3], [0.2], [0.3], [0.3], [1.6], [1.6], [1.6], [3.5]], dtype=np.float32)
+        dense = np.array([0, 0, 0, 0, 0, 1.2, np.nan, 0.2, 0.0], dtype=np.float32)
+        config = TrackMotionConfig(factor=3.0, floor_px=1.0, corroboration=0.75, evident_factor=3.0)
+        assert np.flatnonzero(moving_tracks(residuals, config, dense=dense)).tolist() == [5, 6, 8]
+        assert np.flatnonzero(moving_tracks(residuals, replace(config, corroboration=0.0),
+                                            dense=dense)).tolist() == [5, 6, 7, 8]
+        signed = np.full((9, 1), 5.0, dtype=np.float32)
         signed[1] = -4.0  # behind infinity: cheirality needs no corroboration
         assert np.flatnonzero(moving_tracks(residuals, config, signed=signed,
-                                            corroborated=np.zeros(8, bool))).tolist() == [1, 7]
+                                            dense=np.zeros(9, np.float32))).tolist() == [1, 8]
 
     @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
     def test_nothing_measured_flags_nothing(self, shape):

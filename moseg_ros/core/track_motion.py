@@ -77,8 +77,12 @@ class TrackMotionConfig:
     ransac_px: float = 1.0
     factor: float = 3.0
     floor_px: float = 1.0
-    # A distance this many times the threshold flags a track without the corroboration ``moving_tracks`` may ask
-    # for (KLT's drift at a near edge stays within 1-3 times it; a mover's distance often goes far beyond).
+    # With the dense residual near each track (``moving_tracks``' ``dense``), a distance flags a track only where
+    # the dense flow departs from the epipolar geometry by at least this share of it too: KLT drifts where its
+    # window straddles a near object's edge (a tree trunk against the far street) and the dense flow there does
+    # not (README). 0: off. A distance ``evident_factor`` times the threshold needs no corroboration (KLT's
+    # drift stays within 1-3 times it; a mover's distance often goes far beyond).
+    corroboration: float = 0.75
     evident_factor: float = 3.0
     min_tracks: int = 20
     min_parallax_px: float = 0.5
@@ -557,11 +561,11 @@ def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
 
 def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
                   signed: np.ndarray | None = None, ground: np.ndarray | None = None,
-                  footing: np.ndarray | None = None, corroborated: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (and that
-    are ``corroborated``, when given, or exceed ``evident_factor`` times that), whose median signed parallax is
-    below -cheir_px, whose median ground ratio is below ground_ratio, or whose median footing excess is above
-    footing_px.
+                  footing: np.ndarray | None = None, dense: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (where the
+    ``dense`` residual, when given, reaches ``corroboration`` times that distance, or the distance exceeds
+    ``evident_factor`` times the threshold), whose median signed parallax is below -cheir_px, whose median
+    ground ratio is below ground_ratio, or whose median footing excess is above footing_px.
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
@@ -569,8 +573,8 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         signed: optional (N, P) signed parallax (NaN = not measured or pair undecided).
         ground: optional (N, P) ratios of ``ground_parallax_ratio`` (NaN = undecided).
         footing: optional (N, P) excesses of ``footing_excess`` (NaN = undecided).
-        corroborated: optional (N,) bool; False: the distance test does not flag the track (other evidence
-            says it does not move there, e.g. the dense flow around it).
+        dense: optional (N,) the dense flow's epipolar residual near each track, in the units of its distance
+            (NaN: not known there, no corroboration asked).
     """
     per_track = row_medians(residuals)
     measured = ~np.isnan(per_track)
@@ -579,8 +583,9 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         return moving
     threshold = max(config.factor * float(np.median(per_track[measured])), config.floor_px)
     moving[measured] = per_track[measured] > threshold
-    if corroborated is not None:
-        moving &= corroborated | (per_track > config.evident_factor * threshold)
+    if dense is not None and config.corroboration > 0:
+        doubted = dense < config.corroboration * per_track  # NaN compares False
+        moving &= ~doubted | (per_track > config.evident_factor * threshold)
     if signed is not None:
         moving |= _median_below(signed, -config.cheir_px)
     if ground is not None:

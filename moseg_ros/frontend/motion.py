@@ -10,7 +10,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   The ground and footing tests also get the pair of the window's first and last frames: near the focus of
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
   The epipolar distance counts only where the dense residual near the track corroborates it, or where it is
-  far above its threshold (``dense_corroboration``): KLT drifts where its window straddles a near edge.
+  far above its threshold (``TrackMotionConfig.corroboration``): KLT drifts where its window straddles a near
+  edge, the dense flow does not.
   A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
@@ -86,12 +87,11 @@ class MotionFrontEndConfig:
     # extrapolates there, and in a turn the band entering the view came out moving (README).
     dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
         residual_threshold_px=1.0, residual_noise_factor=5.0, border_fraction=0.05))
-    # A track's epipolar distance counts only where the dense residual within ``corroboration_reach`` pixels of it
-    # (at the dense width) reaches this share of the dense threshold: KLT drifts where its window straddles a
-    # near object's edge (a tree trunk against the far street) and the dense flow there does not (README).
-    # The cheirality, ground and footing tests need no corroboration: inside the epipolar plane the dense
-    # residual is zero. 0: off.
-    dense_corroboration: float = 0.25
+    # The dense residual that corroborates a track's epipolar distance (``TrackMotionConfig.corroboration``) is
+    # the largest within this many pixels of it at the dense width; where it reaches ``corroboration_floor`` of
+    # the dense threshold it corroborates any distance (DIS at the dense width blurs a small far mover into
+    # the background around it, and its residual comes out a fraction of its tracks'; README).
+    corroboration_floor: float = 0.25
     corroboration_reach: int = 2
     min_region_area: int = 80
     min_texture: float = 1e-3
@@ -173,14 +173,14 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
     return mask.astype(bool)
 
 
-def dense_support(points: np.ndarray, residual: np.ndarray, level: float, reach: int) -> np.ndarray:
-    """(N,) bool: whether the (h, w) ``residual`` reaches ``level`` within ``reach`` pixels (a square) of each of
-    the (N, 2) ``points`` (x, y at the residual's size; points outside take the nearest border pixel)."""
+def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarray:
+    """(N,) the largest of the (h, w) ``residual`` within ``reach`` pixels (a square) of each of the (N, 2)
+    ``points`` (x, y at the residual's size; points outside take the nearest border pixel)."""
     if reach > 0:
         residual = cv2.dilate(residual, np.ones((2 * reach + 1, 2 * reach + 1), dtype=np.uint8))
     h, w = residual.shape
     xy = np.clip(np.rint(points).astype(np.int64), 0, [w - 1, h - 1])
-    return residual[xy[:, 1], xy[:, 0]] >= level
+    return residual[xy[:, 1], xy[:, 0]]
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
@@ -414,7 +414,7 @@ class MotionFrontEnd:
     def _flagged(self, observation: Observation, dense: EpipolarResidual | None = None) -> np.ndarray:
         """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); with the
         frame's ``dense`` evidence, a track's epipolar distance counts only where the dense residual near it
-        corroborates it (``dense_corroboration``)."""
+        corroborates it (``TrackMotionConfig.corroboration``)."""
         newest = None
         if observation.pair is not None:
             newest = self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
@@ -444,25 +444,27 @@ class MotionFrontEnd:
             for table, values in zip(tables[2:], (evidence.ground, evidence.footing)):
                 if values is not None:
                     table[rows, -1] = values[known]
-        corroborated = self._corroborated(ids, observation, dense)
-        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:], corroborated=corroborated)]
+        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
+                                    dense=self._dense_near(ids, observation, dense))]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
 
-    def _corroborated(self, ids: np.ndarray, observation: Observation,
-                      evidence: EpipolarResidual | None) -> np.ndarray | None:
-        """(len(ids),) bool: the tracks of sorted ``ids`` that the dense residual corroborates where they are
-        now (those not seen now, True); None without dense evidence or with the check off."""
-        share = self.config.dense_corroboration
-        if evidence is None or share <= 0 or observation.pair is None or not np.isfinite(evidence.threshold):
+    def _dense_near(self, ids: np.ndarray, observation: Observation,
+                    evidence: EpipolarResidual | None) -> np.ndarray | None:
+        """(len(ids),) the dense residual near each track of sorted ``ids`` where it is now, in the units of the
+        track test's distances (tracking pixels over ``gap`` frames; infinite where it reaches
+        ``corroboration_floor`` of the dense threshold); NaN for tracks not seen now, None without dense
+        evidence."""
+        if evidence is None or observation.pair is None or not np.isfinite(evidence.threshold):
             return None
         _, _, now_ids, now = observation.pair
         scale = evidence.residual.shape[1] / observation.tracking_shape[1]
-        near = dense_support(now * scale, evidence.residual, share * evidence.threshold,
-                             self.config.corroboration_reach)
+        near = dense_near(now * scale, evidence.residual, self.config.corroboration_reach)
         _, rows, columns = np.intersect1d(ids, now_ids, assume_unique=True, return_indices=True)
-        keep = np.ones(ids.size, dtype=bool)
-        keep[rows] = near[columns]
-        return keep
+        near = near[columns]
+        values = np.full(ids.size, np.nan, dtype=np.float32)
+        values[rows] = np.where(near >= self.config.corroboration_floor * evidence.threshold, np.inf,
+                                near / scale * self.config.track_motion.gap / self.config.dense_gap)
+        return values
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray, index: int) -> np.ndarray:
         """Count one more window for each living flagged track (flagged at frame ``index``); returns the ids
