@@ -426,8 +426,9 @@ class TestDenseCorroboration:
         on_mover = rng.uniform([125, 145], [175, 195], (40, 2))
         now = np.vstack([static, drifting, on_mover])
         before = now - 2.0 * (now - cls.CENTRE) * cls._scale(now)[:, None]  # two frames back
-        before[len(static):len(static) + 40] += 2.0 * cls._across(now[len(static):len(static) + 40])  # KLT drift
-        before[len(static) + 40:] += 2.5 * cls._across(now[len(static) + 40:])
+        drift, moving = slice(len(static), len(static) + len(drifting)), slice(len(static) + len(drifting), None)
+        before[drift] += 2.0 * cls._across(now[drift])  # KLT drifting at a near edge: the dense flow does not
+        before[moving] += 2.5 * cls._across(now[moving])
         ids = np.arange(len(now))
         base = MotionFrontEndConfig(dense_width=w, corroboration_floor=floor)
         config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf,
@@ -437,7 +438,7 @@ class TestDenseCorroboration:
         observation = Observation(2, (ids, before.astype(np.float32), ids, now.astype(np.float32)), None, ids, K,
                                   False, (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE)
         flagged = np.isin(ids, MotionFrontEnd(config).refit(observation).flagged)
-        return flagged[:len(static)], flagged[len(static):len(static) + 40], flagged[len(static) + 40:]
+        return flagged[:len(static)], flagged[drift], flagged[moving]
 
     def test_the_drifting_tracks_are_let_go_and_the_mover_is_kept(self):
         static, drifting, mover = self._refit(TrackMotionConfig().corroboration)

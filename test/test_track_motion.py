@@ -4,7 +4,6 @@ parallax pass, independent movers fail."""
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import replace
 import warnings
 
 import cv2
@@ -126,7 +125,7 @@ class TestMovingTracks:
         dense = np.array([0, 0, 0, 0, 0, 1.2, np.nan, 0.2, 0.0], dtype=np.float32)
         config = TrackMotionConfig(factor=3.0, floor_px=1.0, corroboration=0.75, evident_factor=3.0)
         assert np.flatnonzero(moving_tracks(residuals, config, dense=dense)).tolist() == [5, 6, 8]
-        assert np.flatnonzero(moving_tracks(residuals, replace(config, corroboration=0.0),
+        assert np.flatnonzero(moving_tracks(residuals, dataclasses.replace(config, corroboration=0.0),
                                             dense=dense)).tolist() == [5, 6, 7, 8]
         signed = np.full((9, 1), 5.0, dtype=np.float32)
         signed[1] = -4.0  # behind infinity: cheirality needs no corroboration
