@@ -6,7 +6,9 @@ one replaces a waiting one (the slot holds one, so memory stays bounded), which 
 fitting is slower than the camera. NumPy and OpenCV release the GIL, so on two cores the fit runs beside
 the frame path. With ``nice`` the worker thread runs at a lower OS priority than the frame path: on a CPU
 too small for both (one core), frames keep their pace and the fits take the time left between them, so they
-come less often instead of making every frame late.
+come less often instead of making every frame late. With ``duty`` below 1 the worker rests after each fit, so
+that it fits at most that share of the time: on two cores, a worker fitting back to back takes the second
+core that OpenCV's flow and tracking use on the frame path; resting gives it back, for older decisions.
 """
 
 from __future__ import annotations
@@ -35,9 +37,13 @@ class BackgroundRefit(Generic[Observation, Result]):
         niceness: the worker thread's OS niceness once it runs (None where threads cannot be reniced).
     """
 
-    def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit", nice: int = 0) -> None:
+    def __init__(self, fit: Callable[[Observation], Result], name: str = "moseg-refit", nice: int = 0,
+                 duty: float = 1.0) -> None:
+        if not 0.0 < duty <= 1.0:
+            raise ValueError(f"duty must be in (0, 1], got {duty}")
         self._fit = fit
         self._nice = nice
+        self._duty = duty
         self.niceness: int | None = None
         self._cond = threading.Condition()
         self._fitting = threading.Lock()  # held for each fit, so clear() never interleaves with one
@@ -106,8 +112,12 @@ class BackgroundRefit(Generic[Observation, Result]):
 
     def _run(self) -> None:
         self._lower_priority()
+        rest = 0.0
         while True:
             with self._cond:
+                # The rest after a fit (``duty``) ends early when the worker is stopped.
+                if rest > 0 and self._cond.wait_for(lambda: self._stopped, rest):
+                    return
                 self._cond.wait_for(lambda: self._pending is not None or self._stopped)
                 if self._stopped:
                     return
@@ -121,6 +131,7 @@ class BackgroundRefit(Generic[Observation, Result]):
                 except Exception as caught:  # handed to the frame path, which turns it into a frame status
                     result, error = None, caught
                 seconds = time.perf_counter() - start
+                rest = seconds * (1.0 / self._duty - 1.0)
                 with self._cond:  # still under _fitting: a clear() cannot slip in between fit and hand-over
                     self._busy = False
                     if fresh:

@@ -41,6 +41,45 @@ class TestBackgroundRefit:
         finally:
             worker.stop()
 
+    @staticmethod
+    def _gap_between_two_fits(duty: float) -> float:
+        """Seconds between the end of a 0.3 s fit and the start of the next, submitted while the first ran."""
+        started: list[float] = []
+        ended: list[float] = []
+
+        def fit(value: int) -> int:
+            started.append(time.monotonic())
+            time.sleep(0.3)
+            ended.append(time.monotonic())
+            return value
+
+        worker = BackgroundRefit(fit, duty=duty)
+        try:
+            worker.submit(1)
+            time.sleep(0.05)
+            worker.submit(2)
+            assert worker.wait_idle(5) and worker.fitted == 2 and worker.latest() == 2
+        finally:
+            worker.stop()
+        return started[1] - ended[0]
+
+    def test_with_a_duty_below_one_the_worker_rests_after_each_fit(self) -> None:
+        assert self._gap_between_two_fits(0.5) >= 0.25  # rests as long as the fit took
+        assert self._gap_between_two_fits(1.0) < 0.25  # back to back
+
+    def test_stop_ends_a_rest(self) -> None:
+        worker = BackgroundRefit(lambda value: time.sleep(0.1) or value, duty=0.02)  # rests about 5 s
+        worker.submit(1)
+        assert worker.wait_idle(5)
+        start = time.monotonic()
+        worker.stop()
+        assert not worker._thread.is_alive() and time.monotonic() - start < 2
+
+    @pytest.mark.parametrize("duty", [0.0, 1.5])
+    def test_a_duty_outside_zero_to_one_is_refused(self, duty: float) -> None:
+        with pytest.raises(ValueError, match="duty"):
+            BackgroundRefit(lambda value: value, duty=duty)
+
     @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread niceness is Linux's")
     @pytest.mark.parametrize("nice", [0, 5])
     def test_the_fit_runs_at_the_niceness_asked_and_the_caller_keeps_its_own(self, nice: int) -> None:

@@ -54,7 +54,7 @@ class MovingObjects:
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
-        self._worker = (BackgroundRefit(self._front_end.refit, nice=config.refit_nice)
+        self._worker = (BackgroundRefit(self._front_end.refit, nice=config.refit_nice, duty=config.refit_duty)
                         if config.refit == "background" else None)
         self.reset()
 
