@@ -453,14 +453,14 @@ class MotionFrontEnd:
         """(len(ids),) the dense residual near each track of sorted ``ids`` where it is now, in the units of the
         track test's distances (tracking pixels over ``gap`` frames; infinite where it reaches
         ``corroboration_floor`` of the dense threshold); NaN for tracks not seen now, None without dense
-        evidence."""
-        if evidence is None or observation.pair is None or not np.isfinite(evidence.threshold):
+        evidence or with the corroboration off."""
+        if (self.config.track_motion.corroboration <= 0 or evidence is None or observation.pair is None
+                or not np.isfinite(evidence.threshold)):
             return None
         _, _, now_ids, now = observation.pair
-        scale = evidence.residual.shape[1] / observation.tracking_shape[1]
-        near = dense_near(now * scale, evidence.residual, self.config.corroboration_reach)
         _, rows, columns = np.intersect1d(ids, now_ids, assume_unique=True, return_indices=True)
-        near = near[columns]
+        scale = evidence.residual.shape[1] / observation.tracking_shape[1]
+        near = dense_near(now[columns] * scale, evidence.residual, self.config.corroboration_reach)
         values = np.full(ids.size, np.nan, dtype=np.float32)
         values[rows] = np.where(near >= self.config.corroboration_floor * evidence.threshold, np.inf,
                                 near / scale * self.config.track_motion.gap / self.config.dense_gap)
