@@ -456,3 +456,29 @@ class TestDenseCorroboration:
     def test_without_it_the_drifting_tracks_are_flagged(self):
         static, drifting, mover = self._refit(0.0)
         assert drifting.mean() > 0.9 and mover.mean() > 0.9 and static.mean() < 0.01
+
+
+class TestMeasurable:
+    """The ground's shortfall test takes only tracks whose image shows motion along their parallax: not the
+    ones on an edge that runs towards the principal point (a kerb at the horizon)."""
+
+    @staticmethod
+    def _measurable(share: float):
+        h, w = 120, 320
+        gray = np.zeros((h, w), dtype=np.uint8)
+        gray[60:, :160] = 200  # a horizontal edge on the principal row, left of the centre
+        gray[20:40, 220:240] = 200  # a bright square whose corners show motion every way
+        now = np.array([[60.0, 60.0], [100.0, 60.0], [220.0, 20.0], [239.0, 39.0]], dtype=np.float32)
+        ids = np.arange(4)
+        K = np.array([[300.0, 0, 160], [0, 300, 60], [0, 0, 1]])
+        observation = Observation(2, (ids, now, ids, now), None, ids, K, False, None, gray, (h, w))
+        config = MotionFrontEndConfig(dense_width=w, aperture_share=share)
+        among = np.array([True, True, True, False, True, True])
+        return MotionFrontEnd(config)._measurable(np.arange(6), observation, among)
+
+    def test_the_edge_along_the_parallax_is_not_measurable_and_the_corners_are(self):
+        # Id 3 is on a corner but not asked about; ids 4 and 5 are not seen now: nothing to measure them by.
+        assert self._measurable(0.25).tolist() == [False, False, True, False, False, False]
+
+    def test_off_without_a_share(self):
+        assert self._measurable(0.0) is None

@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from conftest import pan_follow_flow
-from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, behind_infinity, far_behind,
-                                         footing_excess, ground_parallax_ratio, ground_slope,
-                                         guessed_camera_matrix, may_be_planar, moving_tracks, pair_evidence,
-                                         pair_residual, pair_residuals, row_medians, signed_parallax)
+from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
+                                         far_behind, footing_excess, ground_floor, ground_parallax_ratio,
+                                         ground_shortfall, ground_slope, guessed_camera_matrix, may_be_planar,
+                                         moving_tracks, pair_evidence, pair_residual, pair_residuals, row_medians,
+                                         signed_parallax)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -132,6 +133,22 @@ class TestMovingTracks:
         assert np.flatnonzero(moving_tracks(residuals, config, signed=signed,
                                             dense=np.zeros(9, np.float32))).tolist() == [1, 8]
 
+    def test_a_shortfall_flags_only_below_its_ratio_and_where_measurable(self):
+        # Every distance at 0.2 px: only the ground's tests decide. Ratios 0.5 / 0.5 / 0.8 / 0.2 / NaN with
+        # shortfalls 3 / 0.5 / 3 / 0.1 / 3 px: the first is short by both measures, the second by too few pixels,
+        # the third by too small a share, the fourth is the ratio test's (0.3) alone, the fifth undecided.
+        residuals = np.full((5, 2), 0.2, dtype=np.float32)
+        ground = np.array([[0.5, 0.5], [0.5, 0.5], [0.8, 0.8], [0.2, 0.2], [np.nan, np.nan]], dtype=np.float32)
+        shortfall = np.array([[3, 3], [0.5, 0.5], [3, 3], [0.1, 0.1], [3, 3]], dtype=np.float32)
+        config = TrackMotionConfig(shortfall_px=1.0, shortfall_ratio=0.6, ground_ratio=0.3)
+        assert np.flatnonzero(moving_tracks(residuals, config, ground=ground)).tolist() == [3]
+        assert np.flatnonzero(moving_tracks(residuals, config, ground=ground, shortfall=shortfall)).tolist() == [0, 3]
+        measurable = np.array([False, True, True, True, True])
+        assert np.flatnonzero(moving_tracks(residuals, config, ground=ground, shortfall=shortfall,
+                                            measurable=measurable)).tolist() == [3]
+        # Without the ground's ratio there is no share to hold the shortfall to: the test is off.
+        assert not moving_tracks(residuals, config, shortfall=shortfall).any()
+
     @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
     def test_nothing_measured_flags_nothing(self, shape):
         assert not moving_tracks(np.full(shape, np.nan, dtype=np.float32)).any()
@@ -199,7 +216,7 @@ def _window_evidence(tracks, K, config=TrackMotionConfig()):
     residuals = np.full((len(tracks), tracks.shape[1] - 2), np.nan, np.float32)
     signed = np.full_like(residuals, np.nan)
     for m in range(residuals.shape[1]):
-        distance, parallax, _, _ = pair_evidence(tracks[:, m], tracks[:, m + 2], config, K)
+        distance, parallax, *_ = pair_evidence(tracks[:, m], tracks[:, m + 2], config, K)
         residuals[:, m] = distance
         if parallax is not None:
             signed[:, m] = parallax
@@ -377,12 +394,83 @@ class TestGroundParallaxRatio:
         assert ground_parallax_ratio(tracks[::25, 0], few) is None
 
 
+class TestGroundShortfall:
+    def test_the_floor_less_the_parallax_is_small_on_the_road_and_the_whole_floor_under_the_followed_car(self):
+        tracks, is_road, is_car = road()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        shortfall = ground_shortfall(tracks[:, 0], parallax)
+        floor = ground_floor(tracks[:, 0], parallax)
+        assert shortfall.shape == (540,) and shortfall.dtype == np.float32
+        decided = np.isfinite(floor)
+        np.testing.assert_allclose(shortfall[decided], (floor - parallax.signed)[decided], rtol=1e-5, atol=1e-4)
+        # The floor is read conservatively low, so the road is at most a little short of it and the static boxes,
+        # nearer than the road, never; the car the camera follows keeps still: short by its whole floor.
+        assert np.nanmax(shortfall[is_road]) < TrackMotionConfig().shortfall_px
+        assert np.nanmax(shortfall[~is_road & ~is_car]) < 0.0
+        np.testing.assert_allclose(shortfall[is_car & decided], floor[is_car & decided], atol=1.0)
+
+    def test_the_floor_has_the_ratio_s_decisions(self):
+        tracks, _, _ = road()
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        floor = ground_floor(tracks[:, 0], parallax)
+        ratio = ground_parallax_ratio(tracks[:, 0], parallax)
+        np.testing.assert_array_equal(np.isnan(floor), np.isnan(ratio))
+        assert np.nanmin(floor) >= TrackMotionConfig().ground_min_px
+        assert np.isnan(floor[tracks[:, 0, 1] < K[1, 2] - 3]).all()  # above the epipole
+
+    def test_none_without_a_forward_motion(self):
+        tracks, _, _ = road(sideways=2.0)
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        assert ground_shortfall(tracks[:, 0], parallax) is None and ground_floor(tracks[:, 0], parallax) is None
+
+    def test_a_pair_gives_it_beside_the_ratio(self):
+        tracks, _, is_car = road()
+        evidence = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
+        assert evidence.shortfall is not None and evidence.shortfall.shape == (540,)
+        assert np.nanmedian(evidence.shortfall[is_car]) > TrackMotionConfig().shortfall_px
+
+
+class TestApertureShare:
+    @staticmethod
+    def _edges(vertical: bool) -> np.ndarray:
+        image = np.zeros((101, 101), dtype=np.uint8)
+        if vertical:
+            image[:, 50:] = 200  # an edge running up and down: its gradient points along x
+        else:
+            image[50:, :] = 200
+        return image
+
+    def test_shape_and_range(self):
+        rng = np.random.default_rng(0)
+        image = rng.integers(0, 255, (60, 80)).astype(np.uint8)
+        points = rng.uniform(0, 80, (25, 2))
+        share = aperture_share(image, points, np.array([40.0, 30.0]), 7)
+        assert share.shape == (25,) and ((share >= 0) & (share <= 1 + 1e-6)).all()
+
+    def test_an_edge_along_the_line_hides_the_motion_along_it_and_one_across_shows_it(self):
+        centre = np.array([50.0, 50.0])
+        # A vertical edge above and below the centre, a horizontal one left and right of it: each runs along
+        # its line from the centre (a kerb near the horizon, seen from the focus of expansion).
+        vertical = aperture_share(self._edges(vertical=True), np.array([[50.0, 20.0], [50.0, 80.0]]), centre, 7)
+        horizontal = aperture_share(self._edges(vertical=False), np.array([[20.0, 50.0], [80.0, 50.0]]), centre, 7)
+        np.testing.assert_allclose(vertical, 0.0, atol=1e-6)
+        np.testing.assert_allclose(horizontal, 0.0, atol=1e-6)
+        across = aperture_share(self._edges(vertical=True), np.array([[50.0, 50.0]]), np.array([0.0, 50.0]), 7)
+        np.testing.assert_allclose(across, 1.0, atol=1e-6)
+
+    def test_a_corner_shows_motion_both_ways(self):
+        image = np.zeros((101, 101), dtype=np.uint8)
+        image[50:, 50:] = 200
+        share = aperture_share(image, np.array([[50.0, 50.0]]), np.array([0.0, 50.0]), 7)
+        assert 0.3 < share[0] < 0.7
+
+
 def test_the_followed_car_is_caught_by_the_ground_and_missed_by_residual_and_cheirality():
     tracks, _, is_car = road()
     residuals = np.full((540, 4), np.nan, np.float32)
     signed, ground = np.full_like(residuals, np.nan), np.full_like(residuals, np.nan)
     for m in range(4):
-        distance, parallax, ratio, _ = pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K)
+        distance, parallax, ratio, *_ = pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K)
         residuals[:, m], signed[:, m], ground[:, m] = distance, parallax, ratio
     assert not moving_tracks(residuals, signed=signed)[is_car].any()  # parallax ~0: neither test sees it
     flagged = moving_tracks(residuals, signed=signed, ground=ground)
@@ -627,8 +715,8 @@ class TestFootingBase:
 def test_the_oncoming_car_is_caught_by_its_footing_and_missed_by_every_other_test():
     tracks, is_parked, is_oncoming = oncoming_street()
     evidence = [pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K) for m in range(4)]
-    residuals, signed, ground, footing = (np.stack(table, axis=1) for table in zip(*evidence))
-    assert not moving_tracks(residuals, signed=signed, ground=ground)[is_oncoming].any()
-    flagged = moving_tracks(residuals, signed=signed, ground=ground, footing=footing)
+    residuals, signed, ground, footing, shortfall = (np.stack(table, axis=1) for table in zip(*evidence))
+    assert not moving_tracks(residuals, signed=signed, ground=ground, shortfall=shortfall)[is_oncoming].any()
+    flagged = moving_tracks(residuals, signed=signed, ground=ground, footing=footing, shortfall=shortfall)
     assert flagged[is_oncoming].mean() > 0.9 and not flagged[is_parked].any()
     assert flagged[~is_oncoming].mean() < 0.01

@@ -36,8 +36,15 @@ linearly with the row below the epipole. ``ground_parallax_ratio`` fits that flo
 depths of the tracks, band by band below the epipole (a low quantile: the road, not the objects on it), and
 gives each track its parallax over the parallax the floor would have there; a track moves when its median
 ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
-horizon) are not decided. Whatever rides with the camera below the horizon (a vehicle's own bonnet in a
-dashcam's view) has no parallax and is flagged like a followed car: crop it away upstream.
+horizon) are not decided. A track also moves when its parallax falls short of the floor's by more than
+``shortfall_px`` and its ratio is below ``shortfall_ratio`` (the mirror of the footing test below: a margin and
+pixels rather than the ratio alone, whose low bar is set by the noise near the horizon): a pedestrian crossing
+ahead walks nearly along the epipolar lines, towards the focus of expansion, and looks farther than the road it
+walks on. That test asks the track to measure its parallax at all (``moving_tracks``' ``measurable``): on an
+edge that runs along the parallax (a kerb near the horizon) KLT cannot see motion along the edge, and its
+parallax comes out short (the aperture problem; ``aperture_share``). Whatever rides with the camera below the
+horizon (a vehicle's own bonnet in a dashcam's view) has no parallax and is flagged like a followed car: crop it
+away upstream.
 
 An oncoming car is the opposite case: it closes in faster than the camera drives, so it projects like a
 static point nearer than it is, and nearer than the ground it stands on. Below the horizon a static surface is
@@ -102,6 +109,10 @@ class TrackMotionConfig:
     screen_stride: int = 4
     screen_iterations: int = 50
     ground_ratio: float = 0.3
+    # The ground test in pixels (the module's docstring; README): the parallax short of the floor's by this many
+    # pixels and below this share of it.
+    shortfall_px: float = 1.0
+    shortfall_ratio: float = 0.6
     ground_min_px: float = 1.0
     ground_bands: int = 12
     ground_band_tracks: int = 10
@@ -339,16 +350,28 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotio
         Ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``; None when
         the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
     """
+    floor = ground_floor(x1, parallax, config, slope)
+    return None if floor is None else (parallax.signed / floor).astype(np.float32)
+
+
+def ground_shortfall(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
+                     slope: float | None = None) -> np.ndarray | None:
+    """(N,) float32 pixels by which each track's signed parallax falls short of the ground's at its pixel
+    (``ground_floor`` minus it: positive = farther than the road there); NaN and None as ``ground_floor``."""
+    floor = ground_floor(x1, parallax, config, slope)
+    return None if floor is None else (floor - parallax.signed).astype(np.float32)
+
+
+def ground_floor(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
+                 slope: float | None = None) -> np.ndarray | None:
+    """(N,) float64 the parallax in pixels the ground would have at each track's pixel (``ground_parallax_ratio``
+    describes the floor); NaN above the epipole and where it is below ``ground_min_px``, None without a slope."""
     if slope is None:
         slope = ground_slope(x1, parallax, config)
     if slope is None:
         return None
-    height = x1[:, 1] - parallax.epipole_row
-    floor = slope * np.maximum(height, 0.0) * parallax.gain  # the ground's parallax, px
-    decided = floor >= config.ground_min_px
-    ratio = np.full(len(x1), np.nan, dtype=np.float32)
-    ratio[decided] = parallax.signed[decided] / floor[decided]
-    return ratio
+    floor = slope * np.maximum(x1[:, 1] - parallax.epipole_row, 0.0) * parallax.gain
+    return np.where(floor >= config.ground_min_px, floor, np.nan)
 
 
 def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
@@ -446,13 +469,14 @@ def _band_below(x: np.ndarray, candidates: np.ndarray, tested: np.ndarray,
 
 class PairEvidence(NamedTuple):
     """One frame pair's evidence per track: ``distance`` as ``pair_residual``; given a camera matrix and a
-    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``ground_parallax_ratio``) and ``footing``
-    (``footing_excess``), each None when not decided."""
+    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``ground_parallax_ratio``), ``footing``
+    (``footing_excess``) and ``shortfall`` (``ground_shortfall``), each None when not decided."""
 
     distance: np.ndarray
     signed: np.ndarray | None = None
     ground: np.ndarray | None = None
     footing: np.ndarray | None = None
+    shortfall: np.ndarray | None = None
 
 
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
@@ -496,10 +520,11 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     parallax = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
     if parallax is None:
         return PairEvidence(distance)
-    slope = ground_slope(x1, parallax, config)  # once for both tests
+    slope = ground_slope(x1, parallax, config)  # once for the ground, shortfall and footing tests
     ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
     signed = guessed_signs(x1, parallax, config.guessed_behind_share) if guessed else parallax.signed
-    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope))
+    shortfall = None if slope is None else ground_shortfall(x1, parallax, config, slope)
+    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope), shortfall)
 
 
 def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
@@ -561,11 +586,13 @@ def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
 
 def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
                   signed: np.ndarray | None = None, ground: np.ndarray | None = None,
-                  footing: np.ndarray | None = None, dense: np.ndarray | None = None) -> np.ndarray:
+                  footing: np.ndarray | None = None, shortfall: np.ndarray | None = None,
+                  dense: np.ndarray | None = None, measurable: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (where the
     ``dense`` residual, when given, reaches ``corroboration`` times that distance, or the distance exceeds
     ``evident_factor`` times the threshold), whose median signed parallax is below -cheir_px, whose median
-    ground ratio is below ground_ratio, or whose median footing excess is above footing_px.
+    ground ratio is below ground_ratio, whose median footing excess is above footing_px, or whose median
+    shortfall is above shortfall_px with a median ground ratio below shortfall_ratio (where ``measurable``).
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
@@ -573,8 +600,11 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         signed: optional (N, P) signed parallax (NaN = not measured or pair undecided).
         ground: optional (N, P) ratios of ``ground_parallax_ratio`` (NaN = undecided).
         footing: optional (N, P) excesses of ``footing_excess`` (NaN = undecided).
+        shortfall: optional (N, P) shortfalls of ``ground_shortfall`` (NaN = undecided); needs ``ground``.
         dense: optional (N,) the dense flow's epipolar residual near each track, in the units of its distance
             (NaN: not known there, no corroboration asked).
+        measurable: optional (N,) bool, the tracks whose image can show their parallax (``aperture_share``);
+            the shortfall test takes only those (default: every track).
     """
     per_track = row_medians(residuals)
     measured = ~np.isnan(per_track)
@@ -592,7 +622,48 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         moving |= _median_below(ground, config.ground_ratio)
     if footing is not None:
         moving |= _median_below(-footing, -config.footing_px)
+    if shortfall is not None and ground is not None:
+        short = short_of_ground(shortfall, ground, config)
+        moving |= short if measurable is None else short & measurable
     return moving
+
+
+def short_of_ground(shortfall: np.ndarray, ground: np.ndarray,
+                    config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray:
+    """(N,) bool: tracks whose median shortfall over their pairs (N, P ``ground_shortfall``) is above
+    ``shortfall_px`` and whose median ground ratio (N, P ``ground_parallax_ratio``) is below ``shortfall_ratio``
+    (``moving_tracks``' ground shortfall test before its ``measurable`` check)."""
+    return _median_below(-shortfall, -config.shortfall_px) & _median_below(ground, config.shortfall_ratio)
+
+
+def aperture_share(gray: np.ndarray, points: np.ndarray, centre: np.ndarray, window: int) -> np.ndarray:
+    """(N,) the share of the image-gradient energy around each point that lies along the line from ``centre``
+    through it: how well a patch tracker measures the point's motion along that line (0 on an edge running
+    along it, the aperture problem; 1 on an edge across it, about 0.5 on a corner).
+
+    d^T G d / trace(G), with G the structure tensor (summed products of Sobel 3x3 gradients) over a ``window`` x
+    ``window`` patch and d the unit direction from ``centre`` to the point. Computed on each point's patch
+    alone (the border pixel repeated outside the image): the test asks it of a few tracks a frame.
+
+    Args:
+        gray: (H, W) image.
+        points: (N, 2) positions (x, y) in it; outside ones take the nearest border pixel.
+        centre: (2,) where the lines start (the epipole of a camera driving forward: its parallax runs from it).
+        window: side of the patch, pixels (odd).
+    """
+    h, w = gray.shape
+    x, y = np.clip(np.rint(points).astype(np.int64), 0, [w - 1, h - 1]).T
+    reach = np.arange(-(window // 2) - 1, window // 2 + 2)
+    rows, columns = np.clip(y[:, None] + reach, 0, h - 1), np.clip(x[:, None] + reach, 0, w - 1)
+    patch = gray[rows[:, :, None], columns[:, None, :]].astype(np.float32)  # (N, window + 2, window + 2)
+    smooth_y = patch[:, :-2] + 2.0 * patch[:, 1:-1] + patch[:, 2:]
+    smooth_x = patch[:, :, :-2] + 2.0 * patch[:, :, 1:-1] + patch[:, :, 2:]
+    gx, gy = smooth_y[:, :, 2:] - smooth_y[:, :, :-2], smooth_x[:, 2:] - smooth_x[:, :-2]
+    xx, xy, yy = ((a * b).sum(axis=(1, 2)) for a, b in ((gx, gx), (gx, gy), (gy, gy)))
+    d = points - np.asarray(centre, dtype=np.float64)
+    d /= np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)[:, None]
+    along = xx * d[:, 0] ** 2 + 2.0 * xy * d[:, 0] * d[:, 1] + yy * d[:, 1] ** 2
+    return along / np.maximum(xx + yy, 1e-12)
 
 
 def _median_below(values: np.ndarray, limit: float) -> np.ndarray:

@@ -9,6 +9,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   than the road there (ground) or nearer than what is seen under it (footing; all in core/track_motion.py).
   The ground and footing tests also get the pair of the window's first and last frames: near the focus of
   expansion the short pairs' parallax is below their floor, and a car followed there has no other evidence.
+  The ground test in pixels (a shortfall against the road) takes only tracks whose image can show motion along
+  their parallax (``aperture_share``): on an edge running that way KLT's parallax comes out short.
   The epipolar distance counts only where the dense residual near the track corroborates it, or where it is
   far above its threshold (``TrackMotionConfig.corroboration``): KLT drifts where its window straddles a near
   edge, the dense flow does not.
@@ -50,8 +52,8 @@ from scipy.spatial import cKDTree
 from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
 from moseg_ros.core.flow_field import away_from_border, pixel_grid
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
-from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, behind_infinity, guessed_camera_matrix,
-                                         moving_tracks, pair_evidence)
+from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, aperture_share, behind_infinity,
+                                         guessed_camera_matrix, moving_tracks, pair_evidence, short_of_ground)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -93,6 +95,12 @@ class MotionFrontEndConfig:
     # the background around it, and its residual comes out a fraction of its tracks'; README).
     corroboration_floor: float = 0.25
     corroboration_reach: int = 2
+    # The ground's shortfall test (``TrackMotionConfig.shortfall_px``) takes a track only where at least this
+    # share of the image-gradient energy in a window of this many pixels (at the dense width) around it lies
+    # along its parallax (``aperture_share``, from the principal point): tracks on kerbs and shadow edges near
+    # the horizon came out farther than the road (README). 0: every track.
+    aperture_share: float = 0.25
+    aperture_window: int = 7
     min_region_area: int = 80
     min_texture: float = 1e-3
     texture_reach: int = 12
@@ -441,11 +449,15 @@ class MotionFrontEnd:
             long_ids, evidence = long
             known = np.isin(long_ids, ids)
             rows = np.searchsorted(ids, long_ids[known])
-            for table, values in zip(tables[2:], (evidence.ground, evidence.footing)):
+            for name in ("ground", "footing", "shortfall"):
+                values = getattr(evidence, name)
                 if values is not None:
-                    table[rows, -1] = values[known]
+                    tables[PairEvidence._fields.index(name)][rows, -1] = values[known]
+        evidence = dict(zip(PairEvidence._fields, tables))
+        short = short_of_ground(evidence["shortfall"], evidence["ground"], self.config.track_motion)
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
-                                    dense=self._dense_near(ids, observation, dense))]
+                                    dense=self._dense_near(ids, observation, dense),
+                                    measurable=self._measurable(ids, observation, short))]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
 
     def _dense_near(self, ids: np.ndarray, observation: Observation,
@@ -465,6 +477,22 @@ class MotionFrontEnd:
         values[rows] = np.where(near >= self.config.corroboration_floor * evidence.threshold, np.inf,
                                 near / scale * self.config.track_motion.gap / self.config.dense_gap)
         return values
+
+    def _measurable(self, ids: np.ndarray, observation: Observation, among: np.ndarray) -> np.ndarray | None:
+        """(len(ids),) bool: of the tracks of sorted ``ids`` that are ``among`` (bool) the ones asked about, those
+        seen now whose image can show their parallax (``aperture_share`` at least ``aperture_share``); None with
+        the check off or before a pair."""
+        if self.config.aperture_share <= 0 or observation.pair is None:
+            return None
+        _, _, now_ids, now = observation.pair
+        _, rows, columns = np.intersect1d(ids[among], now_ids, assume_unique=True, return_indices=True)
+        rows = np.flatnonzero(among)[rows]
+        scale = observation.gray.shape[1] / observation.tracking_shape[1]
+        centre = observation.camera_matrix[:2, 2] * scale
+        measurable = np.zeros(ids.size, dtype=bool)
+        measurable[rows] = aperture_share(observation.gray, now[columns] * scale, centre,
+                                          self.config.aperture_window) >= self.config.aperture_share
+        return measurable
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray, index: int) -> np.ndarray:
         """Count one more window for each living flagged track (flagged at frame ``index``); returns the ids
