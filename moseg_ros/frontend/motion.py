@@ -453,8 +453,8 @@ class MotionFrontEnd:
                 values = getattr(evidence, name)
                 if values is not None:
                     tables[PairEvidence._fields.index(name)][rows, -1] = values[known]
-        evidence = dict(zip(PairEvidence._fields, tables))
-        short = short_of_ground(evidence["shortfall"], evidence["ground"], self.config.track_motion)
+        table = dict(zip(PairEvidence._fields, tables))
+        short = short_of_ground(table["shortfall"], table["ground"], self.config.track_motion)
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
                                     dense=self._dense_near(ids, observation, dense),
                                     measurable=self._measurable(ids, observation, short))]
