@@ -165,6 +165,14 @@ class Pipeline:
         """Stop the method's refit worker, if it has one (the pipeline takes no frames afterwards)."""
         self.method.close()
 
+    def __enter__(self) -> Pipeline:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        """Close: a worker left running when the interpreter exits is killed inside OpenCV, which aborts the
+        process ("FATAL: exception not rethrown")."""
+        self.close()
+
     def reset(self) -> None:
         """Clear the window (the next frame starts a new stream)."""
         self._last_stamp = None

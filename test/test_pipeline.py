@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 
 import cv2
 import numpy as np
@@ -197,3 +198,25 @@ class TestOpenCVThreads:
         assert pinned.stdout.split()[-2:] == ["1", "1"]
         free = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
         assert free.stdout.split()[-2:] == [str(len(os.sched_getaffinity(0)))] * 2
+
+
+def _refit_workers() -> int:
+    return sum(thread.name == "moseg-refit" and thread.is_alive() for thread in threading.enumerate())
+
+
+def test_leaving_a_with_block_stops_the_background_refit_s_worker():
+    before = _refit_workers()
+    with Pipeline(PipelineConfig(refit="background")) as pipeline:
+        for i, frame in enumerate(textured_frames(3)):
+            pipeline.process(frame, i * STEP)
+        assert _refit_workers() == before + 1
+    assert _refit_workers() == before
+
+
+def test_an_offline_tool_asked_for_a_background_refit_leaves_no_worker_behind():
+    """A worker left running when the interpreter exits is killed inside OpenCV, and the process aborts."""
+    from moseg_ros.synth.evaluate import score_scene
+    before = _refit_workers()
+    score_scene("crossing", 0, PipelineConfig(refit="background"), n_frames=6, instances=False)
+    assert _refit_workers() == before
+

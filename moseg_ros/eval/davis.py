@@ -104,21 +104,21 @@ def pooled_ratio(numerator: int, denominator: int) -> float:
 
 def score_clip(name: str, images: list[Path], annotations: list[Path | None], config: PipelineConfig) -> ClipScore:
     """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it."""
-    pipeline = Pipeline(config)
     ious, seconds = [], []
     tp = fp = fn = 0
-    for t, (image, annotation) in enumerate(zip(images, annotations)):
-        result = pipeline.process(read_rgb(image), round(t * FRAME_PERIOD_NS))
-        seconds.append(result.seconds)
-        if t == 0 or annotation is None:
-            continue
-        predicted, truth = result.masks.dynamic > 0, read_annotation(annotation)
-        if truth.shape != predicted.shape:
-            raise ValueError(f"annotation {annotation} is {truth.shape}, its frame {image} {predicted.shape}")
-        ious.append(mask_iou(predicted, truth))
-        tp += np.count_nonzero(predicted & truth)
-        fp += np.count_nonzero(predicted & ~truth)
-        fn += np.count_nonzero(~predicted & truth)
+    with Pipeline(config) as pipeline:
+        for t, (image, annotation) in enumerate(zip(images, annotations)):
+            result = pipeline.process(read_rgb(image), round(t * FRAME_PERIOD_NS))
+            seconds.append(result.seconds)
+            if t == 0 or annotation is None:
+                continue
+            predicted, truth = result.masks.dynamic > 0, read_annotation(annotation)
+            if truth.shape != predicted.shape:
+                raise ValueError(f"annotation {annotation} is {truth.shape}, its frame {image} {predicted.shape}")
+            ious.append(mask_iou(predicted, truth))
+            tp += np.count_nonzero(predicted & truth)
+            fp += np.count_nonzero(predicted & ~truth)
+            fn += np.count_nonzero(~predicted & truth)
     return ClipScore(
         clip=name, frames=len(images), scored_frames=len(ious),
         j=float(np.mean(ious)) if ious else float("nan"),

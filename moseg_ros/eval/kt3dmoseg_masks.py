@@ -90,15 +90,15 @@ def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.nda
 def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore:
     """Run the pipeline over the clip's frames and score its masks at the labelled points."""
     n = min(len(frame_paths), clip.visible.shape[1])
-    pipeline = Pipeline(config)
     masks, seconds = [], []
-    for t in range(n):
-        frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
-        if frame is None:
-            raise ValueError(f"cannot read frame {frame_paths[t]}")
-        result = pipeline.process(frame, t * FRAME_PERIOD_NS)
-        masks.append(result.masks.dynamic)
-        seconds.append(result.seconds)
+    with Pipeline(config) as pipeline:
+        for t in range(n):
+            frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
+            if frame is None:
+                raise ValueError(f"cannot read frame {frame_paths[t]}")
+            result = pipeline.process(frame, t * FRAME_PERIOD_NS)
+            masks.append(result.masks.dynamic)
+            seconds.append(result.seconds)
     hits = points_in_masks(masks, Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels))
     scored = clip.visible[:, :n].copy()
     scored[:, 0] = False

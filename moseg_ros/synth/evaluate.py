@@ -38,21 +38,21 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     """
     height = int(round(width * KITTI_HEIGHT / KITTI_WIDTH))
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
-    pipeline = Pipeline(config)
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
-    for t, frame in enumerate(sequence.frames):
-        result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None)
-        if t < skip:
-            continue
-        ids, areas = np.unique(frame.instances, return_counts=True)
-        covered = np.bincount(frame.instances.ravel(), weights=(result.masks.dynamic > 0).ravel(),
-                              minlength=ids.max() + 1)[ids] / areas
-        hit = np.isin(ids, result.dynamic_ids) if instances else covered >= cover
-        counted = (ids > 0) & (areas >= min_area)
-        for obj, flag in zip(ids[counted].tolist(), hit[counted].tolist()):
-            seen[obj] += 1
-            flagged[obj] += int(flag)
+    with Pipeline(config) as pipeline:
+        for t, frame in enumerate(sequence.frames):
+            result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None)
+            if t < skip:
+                continue
+            ids, areas = np.unique(frame.instances, return_counts=True)
+            covered = np.bincount(frame.instances.ravel(), weights=(result.masks.dynamic > 0).ravel(),
+                                  minlength=ids.max() + 1)[ids] / areas
+            hit = np.isin(ids, result.dynamic_ids) if instances else covered >= cover
+            counted = (ids > 0) & (areas >= min_area)
+            for obj, flag in zip(ids[counted].tolist(), hit[counted].tolist()):
+                seen[obj] += 1
+                flagged[obj] += int(flag)
     return {sequence.object_names[obj]: {"moving": obj in sequence.dynamic_ids, "flagged": flagged[obj],
                                          "seen": seen[obj]} for obj in sorted(seen)}
 

@@ -37,13 +37,12 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
         Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing, and
         ``input_damage`` (None, or why the reading of a damaged input stopped).
     """
-    pipeline = Pipeline(config)
     counts: dict[str, Any] = {"frames_in": 0, "masks_out": 0, "skipped": [], "resets": 0, "statuses": {},
                               "input_damage": None}
     seconds: list[float] = []
     start = time.perf_counter()
     topic = pick_image_topic(list_topics(bag), image_topic)  # an unusable input fails before the output exists
-    with BagWriter(output) as writer:
+    with Pipeline(config) as pipeline, BagWriter(output) as writer:
         try:
             for image in read_images(bag, topic):
                 _process_image(pipeline, image, writer, counts, seconds)
