@@ -77,17 +77,14 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
         refits, refit_ms_p50, refit_ms_p95 (each refit's fit and tests), refit_age_mean, refit_age_max,
         rate_hz (0: back to back).
     """
-    pipeline = Pipeline(config, live=True)
     maps = instances if instances is not None else [None] * len(frames)
     period = 1.0 / rate if rate > 0 else 0.0
     results = []
-    try:
+    with Pipeline(config, live=True) as pipeline:
         start = time.monotonic()
         for i, (frame, labels) in enumerate(zip(frames, maps)):
             sleep_until(start + i * period)
             results.append(pipeline.process(frame, i * 100_000_000, labels))
-    finally:
-        pipeline.close()
     ms = np.array([r.seconds for r in results[1:]]) * 1e3  # the first frame only fills the window
     stages: dict[str, list[float]] = {}
     if decode_ms is not None:

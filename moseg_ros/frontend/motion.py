@@ -437,9 +437,10 @@ class MotionFrontEnd:
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
-        # (distance, signed, ground, footing) x (track, pair), NaN where a pair did not measure it; the last
-        # column is the long pair's, which gives only the ground and footing tests.
+        # (distance, signed, ground, footing, shortfall) x (track, pair), NaN where a pair did not measure it; the
+        # last column is the long pair's, which gives only the ground, footing and shortfall tests.
         tables = np.full((len(PairEvidence._fields), ids.size, len(self._pairs) + 1), np.nan, dtype=np.float32)
+        named = dict(zip(PairEvidence._fields, tables))
         for m, (pair_ids, evidence) in enumerate(self._pairs):
             rows = np.searchsorted(ids, pair_ids)
             for table, values in zip(tables, evidence):
@@ -452,9 +453,8 @@ class MotionFrontEnd:
             for name in ("ground", "footing", "shortfall"):
                 values = getattr(evidence, name)
                 if values is not None:
-                    tables[PairEvidence._fields.index(name)][rows, -1] = values[known]
-        table = dict(zip(PairEvidence._fields, tables))
-        short = short_of_ground(table["shortfall"], table["ground"], self.config.track_motion)
+                    named[name][rows, -1] = values[known]
+        short = short_of_ground(named["shortfall"], named["ground"], self.config.track_motion)
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
                                     dense=self._dense_near(ids, observation, dense),
                                     measurable=self._measurable(ids, observation, short))]
