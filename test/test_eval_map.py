@@ -11,10 +11,13 @@ from scipy.spatial.transform import Rotation
 
 from moseg_ros.cli import main as moseg
 from moseg_ros.eval.map import (
+    Frames,
     colmap_camera,
+    dynamic_landmark_pct,
     export_frames,
     extract_features,
     keypoints_by_image,
+    landmarks_by_instance,
     trajectory_errors,
     write_colmap_masks,
 )
@@ -62,6 +65,60 @@ class TestTrajectoryErrors:
         assert 0.05 < trajectory_errors(noisy, poses)["ate"] < 0.2
         two = dict(list(poses.items())[:2])
         assert trajectory_errors(two, two)["ate"] is None
+
+
+class _Observation:
+    def __init__(self, x: float, y: float, point: int) -> None:
+        self.xy, self.point3D_id = np.array([x, y]), point
+
+
+class _Image:
+    def __init__(self, name: str, observations: list[_Observation]) -> None:
+        self.name, self._observations = name, observations
+
+    def get_observation_points2D(self) -> list[_Observation]:
+        return self._observations
+
+
+class _Reconstruction:
+    """What the landmark counts read of a pycolmap.Reconstruction: its images' observations, its point count."""
+
+    def __init__(self, images: list[_Image], points: int) -> None:
+        self.images, self._points = dict(enumerate(images)), points
+
+    def num_points3D(self) -> int:
+        return self._points
+
+
+class TestLandmarksOnMovers:
+    """Two frames of a 4x6 image: mover 2 in columns 0-1, mover 5 in column 5 of the second frame only; five
+    landmarks, observed at pixel centres +0.5 (COLMAP's convention)."""
+
+    frames = Frames(Path("."), ["a.png", "b.png"], [10, 20], None, (4, 6))
+    movers = {10: np.zeros((4, 6), np.int32), 20: np.zeros((4, 6), np.int32)}
+    movers[10][:, :2] = 2
+    movers[20][:, :2], movers[20][:, 5] = 2, 5
+    reconstruction = _Reconstruction([
+        _Image("a.png", [_Observation(0.5, 0.5, 0), _Observation(1.9, 3.5, 1), _Observation(3.5, 1.5, 2),
+                         _Observation(5.5, 2.5, 3)]),
+        _Image("b.png", [_Observation(0.5, 1.5, 0), _Observation(5.5, 2.5, 3), _Observation(2.5, 0.5, 4),
+                         _Observation(5.99, 3.99, 1)]),
+        _Image("unknown.png", [_Observation(0.5, 0.5, 4)]),  # no map for its stamp: not counted
+    ], points=8)
+
+    def test_each_landmark_counts_once_per_mover_it_is_seen_on(self) -> None:
+        # Point 0 twice on mover 2, point 1 on 2 (frame a) and 5 (frame b), point 3 on 5 in frame b only.
+        assert landmarks_by_instance(self.reconstruction, self.frames, self.movers) == {2: 2, 5: 2}
+
+    def test_the_share_of_landmarks_on_any_mover(self) -> None:
+        moving = {stamp: ids > 0 for stamp, ids in self.movers.items()}
+        assert dynamic_landmark_pct(self.reconstruction, self.frames, moving) == pytest.approx(100.0 * 3 / 8)
+
+    def test_no_mover_seen_gives_empty_counts_and_zero(self) -> None:
+        still = {stamp: np.zeros_like(ids) for stamp, ids in self.movers.items()}
+        assert landmarks_by_instance(self.reconstruction, self.frames, still) == {}
+        assert dynamic_landmark_pct(self.reconstruction, self.frames, {s: m > 0 for s, m in still.items()}) == 0.0
+        assert landmarks_by_instance(_Reconstruction([], 0), self.frames, self.movers) == {}
 
 
 def test_colmap_camera_from_a_ros_camera_matrix() -> None:
@@ -113,6 +170,11 @@ def test_eval_map_on_the_synthetic_street_sees_landmarks_on_movers(street: Path,
         assert row["images_registered"] == 16 and row["points3d"] > 1000 and row["ate"] < 0.05
     assert results["none"]["dynamic_landmark_pct"] > 3.0
     assert results["gt"]["dynamic_landmark_pct"] == 0.0 and results["gt"]["features_lost_pct"] > 5.0
+    # Which movers leak: every landmark on a mover is counted on at least one of them, none with the truth's masks.
+    leaked = results["none"]["dynamic_landmarks_by_instance"]
+    on_movers = results["none"]["dynamic_landmark_pct"] * results["none"]["points3d"] / 100.0
+    assert len(leaked) >= 2 and sum(leaked.values()) >= round(on_movers) >= max(leaked.values())
+    assert results["gt"]["dynamic_landmarks_by_instance"] == {}
     assert results["gt"]["ate"] < results["none"]["ate"]
 
 

@@ -5,7 +5,8 @@ from ``--masks OUTPUT_BAG``, or made by the default method in-process), and with
 (``gt``, when the bag has ``/gt/dynamic_mask``). Each run: SIFT features with COLMAP's own per-image mask
 input (a feature is never extracted on a masked pixel), sequential matching, the global mapper (GLOMAP, in
 COLMAP 4) or the incremental one. Per mode it reports images registered, 3D points, mean reprojection error,
-the features the mask took away, the landmarks observed on a ground-truth moving pixel (synthetic bags) and,
+the features the mask took away, the landmarks observed on a ground-truth moving pixel (synthetic bags; with
+``/gt/instances``, also per moving instance id: which movers leak into the map) and,
 against ground-truth poses (``/gt/pose`` of the bag, e.g. a synthetic bag or one made by ``moseg kitti2bag``
 with poses, or a KITTI pose file given with ``--poses``), ATE after a similarity alignment and RPE between
 consecutive registered frames, both from evo. A PNG beside the JSON shows the trajectories of the three modes
@@ -30,7 +31,9 @@ import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
 from moseg_ros.io.bags import iter_messages, list_topics, read_images, stamp_to_ns
+from moseg_ros.io.image import image_to_array
 from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.synth.street import GT_TOPICS
 
 MODES = ("none", "ours", "gt")
 OUR_MASKS = "/segmenter/dynamic_mask"
@@ -162,18 +165,35 @@ def keypoints_by_image(database: Path) -> dict[str, np.ndarray]:
 
 def dynamic_landmark_pct(reconstruction: Any, frames: Frames, moving: dict[int, np.ndarray]) -> float:
     """Percent of 3D points with at least one observation on a ground-truth moving pixel."""
-    stamp_of = dict(zip(frames.names, frames.stamps))
-    on_mover: set[int] = set()
-    for image in reconstruction.images.values():
-        mask = moving.get(stamp_of.get(image.name, -1))
-        if mask is None:
-            continue
-        for point in image.get_observation_points2D():
-            x, y = np.clip(np.floor(point.xy).astype(int), 0, [mask.shape[1] - 1, mask.shape[0] - 1])
-            if mask[y, x]:
-                on_mover.add(point.point3D_id)
+    on_mover = [points[values] for points, values in _observed(reconstruction, frames, moving)]
     total = reconstruction.num_points3D()
-    return 100.0 * len(on_mover) / total if total else 0.0
+    return 100.0 * np.unique(np.concatenate(on_mover or [[]])).size / total if total else 0.0
+
+
+def landmarks_by_instance(reconstruction: Any, frames: Frames, movers: dict[int, np.ndarray]) -> dict[int, int]:
+    """Which movers leak into the map: per ground-truth instance id, the 3D points with at least one observation
+    on a pixel where that instance moves (``movers``: (H, W) int ids by stamp, 0 where nothing moves); ids
+    with none are left out."""
+    pairs = [np.column_stack([points, ids])[ids > 0] for points, ids in _observed(reconstruction, frames, movers)]
+    if not pairs:
+        return {}
+    ids, counts = np.unique(np.unique(np.concatenate(pairs), axis=0)[:, 1], return_counts=True)
+    return dict(zip(ids.tolist(), counts.tolist()))
+
+
+def _observed(reconstruction: Any, frames: Frames, maps: dict[int, np.ndarray]):
+    """(point3D ids, the map's values at their observations) of every registered image whose stamp has a map
+    (observations at pixel centres +0.5, COLMAP's convention)."""
+    stamp_of = dict(zip(frames.names, frames.stamps))
+    for image in reconstruction.images.values():
+        values = maps.get(stamp_of.get(image.name, -1))
+        observations = image.get_observation_points2D() if values is not None else []
+        if len(observations) == 0:
+            continue
+        xy = np.floor(np.array([point.xy for point in observations])).astype(np.int64)
+        x = xy[:, 0].clip(0, values.shape[1] - 1)
+        y = xy[:, 1].clip(0, values.shape[0] - 1)
+        yield np.array([point.point3D_id for point in observations], dtype=np.int64), values[y, x]
 
 
 def camera_centres(reconstruction: Any, frames: Frames) -> dict[int, np.ndarray]:
@@ -241,8 +261,9 @@ def _poses(bag: Path, pose_file: Path | None = None) -> dict[int, np.ndarray]:
 
 def mode_metrics(reconstruction: Any | None, frames: Frames, keypoints: dict[str, np.ndarray],
                  unmasked: dict[str, np.ndarray], moving: dict[int, np.ndarray],
-                 reference: dict[int, np.ndarray]) -> dict[str, Any]:
-    """One mode's numbers (see the module docstring); ``unmasked`` are the keypoints of the run without masks."""
+                 reference: dict[int, np.ndarray], movers: dict[int, np.ndarray] | None = None) -> dict[str, Any]:
+    """One mode's numbers (see the module docstring); ``unmasked`` are the keypoints of the run without masks,
+    ``movers`` the ground-truth instance ids where they move (``moving_instances``), when the bag has them."""
     total = sum(len(v) for v in unmasked.values())
     kept = sum(len(v) for v in keypoints.values())
     row: dict[str, Any] = {"images": len(frames.names), "images_registered": 0, "points3d": 0,
@@ -255,11 +276,24 @@ def mode_metrics(reconstruction: Any | None, frames: Frames, keypoints: dict[str
                reprojection_error_px=float(reconstruction.compute_mean_reprojection_error()))
     if moving:
         row["dynamic_landmark_pct"] = dynamic_landmark_pct(reconstruction, frames, moving)
+    if movers:
+        row["dynamic_landmarks_by_instance"] = landmarks_by_instance(reconstruction, frames, movers)
     if reference:
         errors = trajectory_errors(camera_centres(reconstruction, frames), reference)
         row.update(ate=errors["ate"], rpe=errors["rpe"])
         row["_aligned"] = errors["aligned"]
     return row
+
+
+def moving_instances(bag: Path, moving: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """(H, W) int32 ground-truth instance ids (``/gt/instances``) where ``moving`` (by stamp) is set, 0 elsewhere,
+    by stamp: the movers of a synthetic bag."""
+    movers = {}
+    for _, _, msg in iter_messages(bag, [GT_TOPICS["instances"]]):
+        stamp = stamp_to_ns(msg.header.stamp)
+        if stamp in moving:
+            movers[stamp] = np.where(moving[stamp], image_to_array(msg), 0).astype(np.int32)
+    return movers
 
 
 def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> dict[int, np.ndarray]:
@@ -288,7 +322,9 @@ def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "glo
     with tempfile.TemporaryDirectory(prefix="moseg-map-") as tmp:
         work = Path(work or tmp)
         frames = export_frames(bag, work / "images", every)
-        truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
+        topics = list_topics(bag)
+        truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in topics else {}
+        movers = moving_instances(bag, truth) if GT_TOPICS["instances"] in topics else {}
         reference = _poses(bag, pose_file)
         sources = {"none": None, "ours": _our_masks(bag, masks_bag, config or PipelineConfig(), work)}
         if truth:
@@ -305,7 +341,7 @@ def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "glo
             reconstruction = run_colmap(frames, work / mode, masks, mapper)
             keypoints = keypoints_by_image(work / mode / "database.db")
             unmasked = unmasked or keypoints
-            results[mode] = mode_metrics(reconstruction, frames, keypoints, unmasked, truth, reference)
+            results[mode] = mode_metrics(reconstruction, frames, keypoints, unmasked, truth, reference, movers)
         if progress:
             print(file=sys.stderr)
     return results
