@@ -201,8 +201,8 @@ class Pipeline:
         Args:
             image: (H, W) grey or (H, W, 3) rgb uint8 frame.
             stamp_ns: the frame's stamp; a stamp not after the previous one resets the window.
-            instances: optional (H, W) int upstream instance ids for this frame (0 = none); without them, the
-                ``instance_model``'s, when one is set.
+            instances: optional (H, W) int upstream instance ids for this frame (0 or negative = none); without
+                them, the ``instance_model``'s, when one is set.
             camera_matrix: optional (3, 3) K of the camera at the image's size (camera_info).
 
         Returns:
@@ -245,8 +245,8 @@ class Pipeline:
                      camera_matrix: np.ndarray | None) -> FrameInput:
         full = to_gray(image, "mono8" if image.ndim == 2 else "rgb8")
         h, w = self._working_size(*full.shape)
-        if instances is not None:
-            instances = cv2.resize(instances.astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
+        if instances is not None:  # ids <= 0 are no instance (segmenters mark "none" with 0 or -1)
+            instances = cv2.resize(np.maximum(instances, 0).astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
         return FrameInput(full, (h, w), instances, camera_matrix)
 
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:

@@ -7,6 +7,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+# Ids up to this index a table of ranks when masks are drawn; larger ones are searched (``_ranks``).
+_TABLE_IDS = 1 << 16
+
 
 @dataclass
 class Masks:
@@ -38,29 +41,49 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
         The masks at (H, W).
     """
     height, width = size
-    top = int(instances.max(initial=0))
-    ids = np.unique(dynamic_ids[(dynamic_ids > 0) & (dynamic_ids <= top)])
+    ids = np.unique(dynamic_ids[(dynamic_ids > 0) & (dynamic_ids <= instances.max(initial=0))])
     # Each dynamic id becomes its rank (1..D, in the order of the ids) in the smallest type that holds D:
     # resizing and dilating uint8 is several times faster than int32 / float32 ids at the output size, and the
     # order kept makes the dilation's maximum the same id.
-    ranks = np.zeros(top + 1, dtype=_rank_type(ids.size))
-    ranks[ids] = np.arange(1, ids.size + 1)
-    ranked = np.take(ranks, instances)
+    ranked = _ranks(instances, ids, _rank_type(ids.size))
     if ranked.shape != (height, width):
         ranked = cv2.resize(ranked, (width, height), interpolation=cv2.INTER_NEAREST)
     if margin_px > 0 and ids.size:
         ranked = _grown(ranked, margin_px)
     # 255 where moving; against an array, not the scalar 0, which OpenCV misreads for 1xN images.
     dynamic = cv2.compare(ranked, np.zeros_like(ranked), cv2.CMP_GT)
-    labels = np.take(np.concatenate([[0], ids]).astype(np.int32),
-                     ranked if ranked.dtype.kind == "u" else ranked.astype(np.int64))
+    labels = _ids_of_ranks(ranked, np.concatenate([[0], ids]).astype(np.int32))
     return Masks(dynamic=dynamic, static=255 - dynamic, instance_labels=labels)
+
+
+def _ranks(instances: np.ndarray, ids: np.ndarray, dtype: type) -> np.ndarray:
+    """(h, w) each pixel's rank among the sorted positive ``ids`` (1..D) as ``dtype``, 0 where its id is none of
+    them (ids <= 0 included). Ids up to ``_TABLE_IDS`` index a table; larger ones (an upstream segmenter's
+    hashes) are searched, rather than a table of every id up to them."""
+    if ids.size == 0:
+        return np.zeros(instances.shape, dtype=dtype)
+    if ids[-1] <= _TABLE_IDS:
+        ranks = np.zeros(int(ids[-1]) + 2, dtype=dtype)  # the last entry stands for every id beyond the table
+        ranks[ids] = np.arange(1, ids.size + 1)
+        return np.take(ranks, instances, mode="clip")  # a negative id clips to entry 0: none
+    position = np.searchsorted(ids, instances)
+    found = ids[np.minimum(position, ids.size - 1)] == instances
+    return np.where(found, position + 1, 0).astype(dtype)
+
 
 
 def _rank_type(count: int) -> type:
     """The smallest type OpenCV resizes and dilates that holds ranks 0..count: uint8, uint16, else float32
     (exact below 2**24, more than the pixels of any working image)."""
     return np.uint8 if count < 2 ** 8 else np.uint16 if count < 2 ** 16 else np.float32
+
+
+def _ids_of_ranks(ranked: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """(H, W) int32 ``table[ranked]``: OpenCV's lookup table for uint8 ranks (several times faster than NumPy's
+    indexing at the output size), NumPy's indexing for wider ones."""
+    if ranked.dtype == np.uint8:
+        return cv2.LUT(ranked, np.pad(table, (0, 256 - table.size)))
+    return np.take(table, ranked if ranked.dtype.kind == "u" else ranked.astype(np.int64))
 
 
 def _grown(labels: np.ndarray, margin_px: int) -> np.ndarray:

@@ -74,6 +74,19 @@ def test_grey_input_and_upstream_instances():
     assert (result.masks.instance_labels[block_truth(4)] == 7).all()
 
 
+def test_negative_upstream_ids_are_no_instance():
+    """A segmenter that marks "none" with -1 gets what one that marks it with 0 gets (not a failed frame)."""
+    results = {}
+    for none in (0, -1):
+        pipeline = Pipeline(PipelineConfig(mask_margin_px=0))
+        for i, frame in enumerate(textured_frames(4)):
+            instances = np.full(frame.shape[:2], none, dtype=np.int32)
+            instances[block_truth(i)] = 7
+            results[none] = pipeline.process(frame, i * STEP, instances)
+    assert results[-1].status == results[0].status == "ok" and results[-1].dynamic_ids.tolist() == [7]
+    assert (results[-1].masks.instance_labels == results[0].masks.instance_labels).all()
+
+
 @pytest.mark.parametrize("bad", [np.zeros((0, 10), np.uint8), np.zeros((10, 10), np.float32)])
 def test_bad_frames_raise_a_clear_error(bad):
     with pytest.raises(ValueError, match="uint8 grey or rgb"):

@@ -34,6 +34,15 @@ class TestRenderMasks:
         masks = render_masks(instances, np.array([5, 99], np.int32), (10, 10))
         assert set(np.unique(masks.instance_labels)) == {0, 5}
 
+    def test_ids_keep_their_values_whatever_their_rank(self):
+        """A few ids (ranked in a byte) beyond 255 and out of order come out as themselves; ids <= 0 are none."""
+        rng = np.random.default_rng(3)
+        for dynamic in (np.array([300, 7, 70], np.int32), np.array([2**31 - 1, 300, 7], np.int32)):  # table, search
+            instances = rng.choice(np.r_[dynamic, 0, -1, -300, 70_000].astype(np.int32), size=(12, 17))
+            masks = render_masks(instances, np.r_[dynamic, -1, 0].astype(np.int32), (12, 17))
+            assert (masks.instance_labels == np.where(np.isin(instances, dynamic), instances, 0)).all()
+            assert ((masks.dynamic > 0) == np.isin(instances, dynamic)).all()
+
     def test_a_pixel_grows_into_a_disc_of_the_margin(self):
         instances = np.zeros((41, 41), np.int32)
         instances[20, 20] = 3
