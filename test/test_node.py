@@ -332,7 +332,7 @@ def test_upstream_instances_are_paired_by_stamp(ros_domain, tmp_path, monkeypatc
         assert probe.wait_for_node(), log.read_text()
         assert probe.spin_until(lambda: instances.get_subscription_count() > 0, 10)
         for i, frame in enumerate(textured_frames(6)):
-            ids = np.zeros(frame.shape[:2], np.int32)
+            ids = np.full(frame.shape[:2], -1, np.int32)  # "no instance" as some segmenters mark it
             ids[block_truth(i)] = 7   # the sliding block
             ids[150:, 500:] = 3       # a static region
             stamp = (60 + i) * 1_000_000_000
