@@ -71,7 +71,6 @@ def _ranks(instances: np.ndarray, ids: np.ndarray, dtype: type) -> np.ndarray:
     return np.where(found, position + 1, 0).astype(dtype)
 
 
-
 def _rank_type(count: int) -> type:
     """The smallest type OpenCV resizes and dilates that holds ranks 0..count: uint8, uint16, else float32
     (exact below 2**24, more than the pixels of any working image)."""

@@ -23,6 +23,7 @@ import dataclasses
 import json
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -181,7 +182,8 @@ def landmarks_by_instance(reconstruction: Any, frames: Frames, movers: dict[int,
     return dict(zip(ids.tolist(), counts.tolist()))
 
 
-def _observed(reconstruction: Any, frames: Frames, maps: dict[int, np.ndarray]):
+def _observed(reconstruction: Any, frames: Frames,
+              maps: dict[int, np.ndarray]) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """(point3D ids, the map's values at their observations) of every registered image whose stamp has a map
     (observations at pixel centres +0.5, COLMAP's convention)."""
     stamp_of = dict(zip(frames.names, frames.stamps))
