@@ -7,8 +7,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-# Ids up to this index a table of ranks when masks are drawn; larger ones are searched (``_ranks``).
-_TABLE_IDS = 1 << 16
+from moseg_ros.core.baseline import DENSE_IDS
 
 
 @dataclass
@@ -58,11 +57,11 @@ def render_masks(instances: np.ndarray, dynamic_ids: np.ndarray, size: tuple[int
 
 def _ranks(instances: np.ndarray, ids: np.ndarray, dtype: type) -> np.ndarray:
     """(h, w) each pixel's rank among the sorted positive ``ids`` (1..D) as ``dtype``, 0 where its id is none of
-    them (ids <= 0 included). Ids up to ``_TABLE_IDS`` index a table; larger ones (an upstream segmenter's
+    them (ids <= 0 included). Ids up to ``DENSE_IDS`` index a table; larger ones (an upstream segmenter's
     hashes) are searched, rather than a table of every id up to them."""
     if ids.size == 0:
         return np.zeros(instances.shape, dtype=dtype)
-    if ids[-1] <= _TABLE_IDS:
+    if ids[-1] <= DENSE_IDS:
         ranks = np.zeros(int(ids[-1]) + 2, dtype=dtype)  # the last entry stands for every id beyond the table
         ranks[ids] = np.arange(1, ids.size + 1)
         return np.take(ranks, instances, mode="clip")  # a negative id clips to entry 0: none

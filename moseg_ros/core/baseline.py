@@ -153,6 +153,10 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
     return EpipolarResidual(residual, valid, float(threshold), fundamental, float(inliers.mean()), homography)
 
 
+# Instance ids up to this are counted in a table indexed by id; larger ones (an upstream segmenter's hashes) by rank.
+DENSE_IDS = 1 << 16
+
+
 def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,
                       min_fraction: float = 0.3, min_pixels: int = 20) -> np.ndarray:
     """Instance ids of which a large enough share of reliable pixels moves independently.
@@ -167,11 +171,16 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     Returns:
         (D,) int32 sorted ids of the dynamic instances.
     """
-    ids = instances.ravel()
+    ids = np.maximum(instances.ravel(), 0)
+    present = None
+    if ids.max(initial=0) > DENSE_IDS:  # counted by rank among the ids present, not in a table up to the largest
+        present, ids = np.unique(ids, return_inverse=True)
+        ids = ids.ravel()
     n = int(ids.max(initial=0)) + 1
     valid_count = np.bincount(ids[valid.ravel()], minlength=n)
     moving_count = np.bincount(ids[(moving & valid).ravel()], minlength=n)
     fraction = moving_count / np.maximum(valid_count, 1)
     dynamic = (fraction >= min_fraction) & (valid_count >= min_pixels)
-    dynamic[0] = False
-    return np.flatnonzero(dynamic).astype(np.int32)
+    index = np.flatnonzero(dynamic)
+    ids = index if present is None else present[index]
+    return ids[ids > 0].astype(np.int32)
