@@ -162,7 +162,7 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     """Instance ids of which a large enough share of reliable pixels moves independently.
 
     Args:
-        instances: (H, W) int32 ids, 0 = background.
+        instances: (H, W) int ids, 0 or below = background.
         moving: (H, W) bool per-pixel evidence.
         valid: (H, W) bool, where the evidence is reliable.
         min_fraction: share of an instance's valid pixels that must move.
@@ -181,6 +181,5 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     moving_count = np.bincount(ids[(moving & valid).ravel()], minlength=n)
     fraction = moving_count / np.maximum(valid_count, 1)
     dynamic = (fraction >= min_fraction) & (valid_count >= min_pixels)
-    index = np.flatnonzero(dynamic)
-    ids = index if present is None else present[index]
-    return ids[ids > 0].astype(np.int32)
+    found = np.flatnonzero(dynamic) if present is None else present[dynamic]
+    return found[found > 0].astype(np.int32)
