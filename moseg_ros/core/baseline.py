@@ -171,14 +171,15 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     Returns:
         (D,) int32 sorted ids of the dynamic instances.
     """
-    ids = np.maximum(instances.ravel(), 0)
+    ids = instances.ravel()
+    counted = valid.ravel() & (ids > 0)  # ids <= 0 are background, never counted
     present = None
     if ids.max(initial=0) > DENSE_IDS:  # counted by rank among the ids present, not in a table up to the largest
         present, ids = np.unique(ids, return_inverse=True)
         ids = ids.ravel()
-    n = int(ids.max(initial=0)) + 1
-    valid_count = np.bincount(ids[valid.ravel()], minlength=n)
-    moving_count = np.bincount(ids[(moving & valid).ravel()], minlength=n)
+    n = max(int(ids.max(initial=0)), 0) + 1
+    valid_count = np.bincount(ids[counted], minlength=n)
+    moving_count = np.bincount(ids[counted & moving.ravel()], minlength=n)
     fraction = moving_count / np.maximum(valid_count, 1)
     dynamic = (fraction >= min_fraction) & (valid_count >= min_pixels)
     found = np.flatnonzero(dynamic) if present is None else present[dynamic]
