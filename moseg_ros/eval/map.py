@@ -95,19 +95,31 @@ def write_colmap_masks(frames: Frames, dynamic: dict[int, np.ndarray], folder: P
     return found
 
 
-def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "global") -> Any | None:
+def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "global",
+               seed: int = 0) -> Any | None:
     """Features (masked by ``masks`` when given), sequential matching and a mapper; the largest reconstruction
-    (pycolmap.Reconstruction) or None when nothing was reconstructed. The database stays in ``work``."""
+    (pycolmap.Reconstruction) or None when nothing was reconstructed. The database stays in ``work``.
+
+    Every step runs on one thread and draws from ``seed``, so the same frames, masks and seed give the same
+    map: on several threads COLMAP numbers the images in the order their features are done, and matching and
+    the mapper follow the ids (README: the spread it gave)."""
     import pycolmap
 
+    pycolmap.set_random_seed(seed)
     database = extract_features(frames, work, masks)
-    pycolmap.match_sequential(database, device=pycolmap.Device.cpu)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = 1
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = seed
+    pycolmap.match_sequential(database, matching_options=matching, verification_options=verification,
+                              device=pycolmap.Device.cpu)
     output = work / "sparse"
     output.mkdir(exist_ok=True)
     if mapper == "global":
-        reconstructions = pycolmap.global_mapping(database, frames.folder, output)
+        reconstructions = pycolmap.global_mapping(database, frames.folder, output, options=_global_options(seed))
     else:
         options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads, options.random_seed = 1, seed
         # Driving straight ahead, every pair's forward share of the motion exceeds COLMAP's 0.95 bound on the
         # initial pair, and small steps give triangulation angles of a few degrees.
         options.mapper.init_max_forward_motion = 1.0
@@ -116,6 +128,22 @@ def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "gl
     if not reconstructions:
         return None
     return max(reconstructions.values(), key=lambda r: r.num_reg_images())
+
+
+def _global_options(seed: int) -> Any:
+    """The global mapper's options on one thread, every random draw of it from ``seed``."""
+    import pycolmap
+
+    options = pycolmap.GlobalPipelineOptions()
+    options.num_threads, options.random_seed = 1, seed
+    mapper = options.mapper
+    mapper.num_threads, mapper.random_seed = 1, seed
+    mapper.rotation_averaging.random_seed = seed
+    mapper.global_positioning.random_seed = seed
+    mapper.retriangulation.random_seed = seed
+    mapper.bundle_adjustment.ceres.solver_options.num_threads = 1
+    options.mapper = mapper  # pybind11 hands out a copy of the nested options
+    return options
 
 
 def extract_features(frames: Frames, work: Path, masks: Path | None) -> Path:
@@ -132,6 +160,7 @@ def extract_features(frames: Frames, work: Path, masks: Path | None) -> Path:
         reader.mask_path = str(masks)
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = 4096
+    extraction.num_threads = 1  # see run_colmap
     pycolmap.extract_features(database, frames.folder, image_names=frames.names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=reader,
                               extraction_options=extraction, device=pycolmap.Device.cpu)
@@ -309,9 +338,10 @@ def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> di
 
 def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "global", every: int = 1,
                  config: Any = None, work: Path | None = None, progress: bool = True,
-                 pose_file: Path | None = None) -> dict[str, Any]:
+                 pose_file: Path | None = None, seed: int = 0) -> dict[str, Any]:
     """Run COLMAP per mode on ``bag`` and return {mode: metrics} (modes without masks are left out); the
-    ground-truth poses come from ``pose_file`` (a KITTI pose file) when given, else the bag's /gt/pose."""
+    ground-truth poses come from ``pose_file`` (a KITTI pose file) when given, else the bag's /gt/pose. Each
+    mode's COLMAP draws from ``seed``: the same bag, masks and seed give the same numbers (``run_colmap``)."""
     from moseg_ros.pipeline import PipelineConfig
 
     import pycolmap
@@ -340,7 +370,7 @@ def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "glo
             if dynamic is not None:
                 masks = work / f"masks_{mode}"
                 write_colmap_masks(frames, dynamic, masks)
-            reconstruction = run_colmap(frames, work / mode, masks, mapper)
+            reconstruction = run_colmap(frames, work / mode, masks, mapper, seed)
             keypoints = keypoints_by_image(work / mode / "database.db")
             unmasked = unmasked or keypoints
             results[mode] = mode_metrics(reconstruction, frames, keypoints, unmasked, truth, reference, movers)
@@ -382,6 +412,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--poses", type=Path, metavar="FILE",
                         help="ground-truth poses: a KITTI pose file, line i for the bag's i-th image (default: "
                              "the bag's /gt/pose)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="COLMAP's random seed: the same bag, masks and seed give the same numbers (default 0)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="write the results here (and the plot beside)")
     add_settings_arguments(parser)
 
@@ -393,7 +425,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         results = evaluate_map(args.bag, masks_bag=args.masks, mapper=args.mapper, every=args.every,
-                               config=pipeline_config(args), pose_file=args.poses)
+                               config=pipeline_config(args), pose_file=args.poses, seed=args.seed)
     except (FileNotFoundError, ValueError) as error:
         print(f"moseg eval map: error: {error}", file=sys.stderr)
         return 2
