@@ -13,9 +13,9 @@ import pytest
 from conftest import pan_follow_flow
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
                                          far_behind, footing_excess, ground_floor, ground_parallax_ratio,
-                                         ground_shortfall, ground_slope, guessed_camera_matrix, may_be_planar,
+                                         ground_slope, guessed_camera_matrix, may_be_planar,
                                          moving_tracks, pair_evidence, pair_residual, pair_residuals, row_medians,
-                                         signed_parallax)
+                                         signed_parallax, standing_rows, standing_shortfall)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -133,21 +133,20 @@ class TestMovingTracks:
         assert np.flatnonzero(moving_tracks(residuals, config, signed=signed,
                                             dense=np.zeros(9, np.float32))).tolist() == [1, 8]
 
-    def test_a_shortfall_flags_only_below_its_ratio_and_where_measurable(self):
-        # Every distance at 0.2 px: only the ground's tests decide. Ratios 0.5 / 0.5 / 0.8 / 0.2 / NaN with
-        # shortfalls 3 / 0.5 / 3 / 0.1 / 3 px: the first is short by both measures, the second by too few pixels,
-        # the third by too small a share, the fourth is the ratio test's (0.3) alone, the fifth undecided.
+    def test_a_shortfall_flags_where_most_pairs_fall_short_and_where_measurable(self):
+        # Every distance at 0.2 px: only the ground's tests decide. Margins short of the ground where the tracks
+        # stand (``standing_shortfall``): short in both pairs, in one of two (far short in it: the median of the
+        # two would be positive), in none, the ratio test's (0.3) alone, undecided.
         residuals = np.full((5, 2), 0.2, dtype=np.float32)
         ground = np.array([[0.5, 0.5], [0.5, 0.5], [0.8, 0.8], [0.2, 0.2], [np.nan, np.nan]], dtype=np.float32)
-        shortfall = np.array([[3, 3], [0.5, 0.5], [3, 3], [0.1, 0.1], [3, 3]], dtype=np.float32)
-        config = TrackMotionConfig(shortfall_px=1.0, shortfall_ratio=0.6, ground_ratio=0.3)
+        shortfall = np.array([[2, 3], [5, -0.5], [-1, -1], [-0.5, -0.5], [np.nan, np.nan]], dtype=np.float32)
+        config = TrackMotionConfig(ground_ratio=0.3)
         assert np.flatnonzero(moving_tracks(residuals, config, ground=ground)).tolist() == [3]
         assert np.flatnonzero(moving_tracks(residuals, config, ground=ground, shortfall=shortfall)).tolist() == [0, 3]
         measurable = np.array([False, True, True, True, True])
         assert np.flatnonzero(moving_tracks(residuals, config, ground=ground, shortfall=shortfall,
                                             measurable=measurable)).tolist() == [3]
-        # Without the ground's ratio there is no share to hold the shortfall to: the test is off.
-        assert not moving_tracks(residuals, config, shortfall=shortfall).any()
+        assert np.flatnonzero(moving_tracks(residuals, config, shortfall=shortfall)).tolist() == [0]
 
     @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
     def test_nothing_measured_flags_nothing(self, shape):
@@ -395,19 +394,17 @@ class TestGroundParallaxRatio:
 
 
 class TestGroundShortfall:
-    def test_the_floor_less_the_parallax_is_small_on_the_road_and_the_whole_floor_under_the_followed_car(self):
+    def test_the_road_and_the_static_boxes_are_never_short_and_the_followed_car_is(self):
         tracks, is_road, is_car = road()
-        parallax = _parallax(tracks[:, 0], tracks[:, 2])
-        shortfall = ground_shortfall(tracks[:, 0], parallax)
-        floor = ground_floor(tracks[:, 0], parallax)
-        assert shortfall.shape == (540,) and shortfall.dtype == np.float32
-        decided = np.isfinite(floor)
-        np.testing.assert_allclose(shortfall[decided], (floor - parallax.signed)[decided], rtol=1e-5, atol=1e-4)
+        x1 = tracks[:, 0]
+        parallax = _parallax(x1, tracks[:, 2])
+        ground = ground_parallax_ratio(x1, parallax)
+        margin = standing_shortfall(x1, parallax, ground)
+        assert margin.shape == (540,) and margin.dtype == np.float32
         # The floor is read conservatively low, so the road is at most a little short of it and the static boxes,
         # nearer than the road, never; the car the camera follows keeps still: short by its whole floor.
-        assert np.nanmax(shortfall[is_road]) < TrackMotionConfig().shortfall_px
-        assert np.nanmax(shortfall[~is_road & ~is_car]) < 0.0
-        np.testing.assert_allclose(shortfall[is_car & decided], floor[is_car & decided], atol=1.0)
+        assert np.nanmax(margin[~is_car]) < 0.0
+        assert np.mean(margin[is_car] > 0) > 0.9
 
     def test_the_floor_has_the_ratio_s_decisions(self):
         tracks, _, _ = road()
@@ -421,13 +418,13 @@ class TestGroundShortfall:
     def test_none_without_a_forward_motion(self):
         tracks, _, _ = road(sideways=2.0)
         parallax = _parallax(tracks[:, 0], tracks[:, 2])
-        assert ground_shortfall(tracks[:, 0], parallax) is None and ground_floor(tracks[:, 0], parallax) is None
+        assert standing_shortfall(tracks[:, 0], parallax, None) is None and ground_floor(tracks[:, 0], parallax) is None
 
     def test_a_pair_gives_it_beside_the_ratio(self):
         tracks, _, is_car = road()
         evidence = pair_evidence(tracks[:, 0], tracks[:, 2], TrackMotionConfig(), K)
         assert evidence.shortfall is not None and evidence.shortfall.shape == (540,)
-        assert np.nanmedian(evidence.shortfall[is_car]) > TrackMotionConfig().shortfall_px
+        assert np.nanmedian(evidence.shortfall[is_car]) > 0.0  # short of the ground where it stands
 
 
 class TestApertureShare:
@@ -678,6 +675,71 @@ def pole_street(seed: int = 0):
     static = np.vstack([front, behind[~column], beside, walls(rng)])
     tracks = _forward_drive(np.vstack([static, pole]), np.zeros((0, 3)), np.zeros(3), 3, seed)
     return tracks, np.r_[np.zeros(len(static), bool), np.ones(40, bool)]
+
+
+def walking_away(seed: int = 0):
+    """A pedestrian (0.5 m wide, 1.8 m tall, 12 m ahead on the right) walking away at 0.6 of the camera's speed
+    over a densely tracked road, between two walls. Returns tracks (N, 3, 2) and is_walker (N,)."""
+    rng = np.random.default_rng(seed)
+    road = np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), rng.uniform(6.5, 40, 900)])
+    walker = np.column_stack([rng.uniform(2.5, 3.0, 40), rng.uniform(-0.3, 1.45, 40), np.full(40, 12.0)])
+    static = np.vstack([road, walls(rng)])
+    static = static[~_in_front_of(static, walker)]
+    tracks = _forward_drive(static, walker, np.array([0.0, 0.0, 0.6]), 3, seed)
+    return tracks, np.r_[np.zeros(len(static), bool), np.ones(len(walker), bool)]
+
+
+class TestStandingRows:
+    def test_a_walker_stands_on_its_lowest_track_and_the_road_nearly_where_it_is(self):
+        tracks, is_walker = walking_away()
+        x1 = tracks[:, 0]
+        parallax = _parallax(x1, tracks[:, 2])
+        rows = standing_rows(x1, parallax, ground_parallax_ratio(x1, parallax))
+        assert rows.shape == (len(x1),) and rows.dtype == np.float64
+        assert (rows >= x1[:, 1]).all()
+        lowest = x1[is_walker, 1].max()
+        assert np.median(lowest - rows[is_walker]) < 3.0 and np.median(rows[is_walker] - x1[is_walker, 1]) > 10.0
+        # On the road the next tracks down are nearer by more than the same-depth share within a few rows.
+        below = ~is_walker & (x1[:, 1] > parallax.epipole_row + 5)
+        assert np.median(rows[below] - x1[below, 1]) < 3.0
+        # Above the epipole every track stands where it is.
+        above = x1[:, 1] <= parallax.epipole_row
+        np.testing.assert_array_equal(rows[above], x1[above, 1])
+
+    def test_the_walker_is_short_of_the_ground_where_it_stands_not_of_the_road_at_its_rows(self):
+        tracks, is_walker = walking_away()
+        config = TrackMotionConfig()
+        evidence = pair_evidence(tracks[:, 0], tracks[:, 2], config, K)
+        short = evidence.shortfall > 0
+        parallax = _parallax(tracks[:, 0], tracks[:, 2])
+        own = (ground_floor(tracks[:, 0], parallax) - parallax.signed > config.shortfall_px) & (
+            evidence.ground < config.shortfall_ratio)
+        assert short[is_walker].mean() > 0.7 and own[is_walker].mean() < 0.4
+        # The road seen just beside the walker lies as far as the walker looks: it stands on the walker's feet.
+        columns = tracks[is_walker, 0, 0]
+        away = (tracks[:, 0, 0] < columns.min() - 8) | (tracks[:, 0, 0] > columns.max() + 8)
+        assert not short[~is_walker & away].any()
+
+    def test_the_margin_is_the_lesser_of_the_pixels_and_the_share_short(self):
+        tracks, _ = walking_away()
+        x1 = tracks[:, 0]
+        parallax = _parallax(x1, tracks[:, 2])
+        ground = ground_parallax_ratio(x1, parallax)
+        config = TrackMotionConfig(shortfall_px=1.0, shortfall_ratio=0.6)
+        floor = ground_floor(x1, parallax, config, rows=standing_rows(x1, parallax, ground, config))
+        margin = standing_shortfall(x1, parallax, ground, config)
+        assert margin.shape == (len(x1),) and margin.dtype == np.float32
+        expected = np.minimum(floor - parallax.signed - 1.0, 0.6 * floor - parallax.signed)
+        np.testing.assert_allclose(margin, expected, rtol=1e-5, atol=1e-4)
+        np.testing.assert_array_equal(np.isnan(margin), np.isnan(floor))
+        # A track near the horizon, whose own row's road is below the noise, is decided where it stands.
+        assert (np.isnan(ground) & np.isfinite(margin)).any()
+        assert standing_shortfall(x1, dataclasses.replace(parallax, epipole_row=None), ground, config) is None
+
+    def test_no_rows_moved_without_a_forward_motion(self):
+        tracks, _, _ = road(sideways=2.0)
+        parallax = dataclasses.replace(_parallax(tracks[:, 0], tracks[:, 2]), epipole_row=None)
+        np.testing.assert_array_equal(standing_rows(tracks[:, 0], parallax, None), tracks[:, 0, 1])
 
 
 class TestFootingBase:

@@ -36,15 +36,17 @@ linearly with the row below the epipole. ``ground_parallax_ratio`` fits that flo
 depths of the tracks, band by band below the epipole (a low quantile: the road, not the objects on it), and
 gives each track its parallax over the parallax the floor would have there; a track moves when its median
 ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
-horizon) are not decided. A track also moves when its parallax falls short of the floor's by more than
-``shortfall_px`` and its ratio is below ``shortfall_ratio`` (the mirror of the footing test below: a margin and
-pixels rather than the ratio alone, whose low bar is set by the noise near the horizon): a pedestrian crossing
-ahead walks nearly along the epipolar lines, towards the focus of expansion, and looks farther than the road it
-walks on. That test asks the track to measure its parallax at all (``moving_tracks``' ``measurable``): on an
-edge that runs along the parallax (a kerb near the horizon) KLT cannot see motion along the edge, and its
-parallax comes out short (the aperture problem; ``aperture_share``). Whatever rides with the camera below the
-horizon (a vehicle's own bonnet in a dashcam's view) has no parallax and is flagged like a followed car: crop it
-away upstream.
+horizon) are not decided. A track also moves when, in most pairs, its parallax falls short of the floor's by
+more than ``shortfall_px`` and below ``shortfall_ratio`` of it (the mirror of the footing test below: a margin
+and pixels rather than the ratio alone, whose low bar is set by the noise near the horizon), the floor taken at
+the row its object stands on (``standing_rows``: its column's lowest track at its own inverse depth) rather
+than at its own: a pedestrian crossing ahead walks nearly along the epipolar lines, towards the focus of
+expansion, and looks farther than the road under its feet from every one of its tracks, while the road at the
+rows of its upper tracks lies farther still. That test asks the track to measure its parallax at all
+(``moving_tracks``' ``measurable``): on an edge that runs along the parallax (a kerb near the horizon) KLT cannot
+see motion along the edge, and its parallax comes out short (the aperture problem; ``aperture_share``).
+Whatever rides with the camera below the horizon (a vehicle's own bonnet in a dashcam's view) has no parallax
+and is flagged like a followed car: crop it away upstream.
 
 An oncoming car is the opposite case: it closes in faster than the camera drives, so it projects like a
 static point nearer than it is, and nearer than the ground it stands on. Below the horizon a static surface is
@@ -113,6 +115,9 @@ class TrackMotionConfig:
     # pixels and below this share of it.
     shortfall_px: float = 1.0
     shortfall_ratio: float = 0.6
+    # The shortfall is measured at the row the track's object stands on: the lowest track of its column at its own
+    # inverse depth within this share (a looser bound lets the road in front of a static object pass for it).
+    shortfall_same_depth: float = 0.1
     ground_min_px: float = 1.0
     ground_bands: int = 12
     ground_band_tracks: int = 10
@@ -354,24 +359,51 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotio
     return None if floor is None else (parallax.signed / floor).astype(np.float32)
 
 
-def ground_shortfall(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
-                     slope: float | None = None) -> np.ndarray | None:
-    """(N,) float32 pixels by which each track's signed parallax falls short of the ground's at its pixel
-    (``ground_floor`` minus it: positive = farther than the road there); NaN and None as ``ground_floor``."""
-    floor = ground_floor(x1, parallax, config, slope)
-    return None if floor is None else (floor - parallax.signed).astype(np.float32)
-
-
 def ground_floor(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
-                 slope: float | None = None) -> np.ndarray | None:
-    """(N,) float64 the parallax in pixels the ground would have at each track's pixel (``ground_parallax_ratio``
-    describes the floor); NaN above the epipole and where it is below ``ground_min_px``, None without a slope."""
+                 slope: float | None = None, rows: np.ndarray | None = None) -> np.ndarray | None:
+    """(N,) float64 the parallax in pixels the ground would have at each track's pixel, or in its column at its
+    ``rows`` when given (``ground_parallax_ratio`` describes the floor); NaN above the epipole and where it is
+    below ``ground_min_px``, None without a slope."""
     if slope is None:
         slope = ground_slope(x1, parallax, config)
     if slope is None:
         return None
-    floor = slope * np.maximum(x1[:, 1] - parallax.epipole_row, 0.0) * parallax.gain
+    rows = x1[:, 1] if rows is None else rows
+    floor = slope * np.maximum(rows - parallax.epipole_row, 0.0) * parallax.gain
     return np.where(floor >= config.ground_min_px, floor, np.nan)
+
+
+def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
+                       config: TrackMotionConfig = TrackMotionConfig(),
+                       slope: float | None = None) -> np.ndarray | None:
+    """(N,) float32 pixels by which each track falls short of the ground where it stands by both of the shortfall
+    test's measures: min(floor - signed - ``shortfall_px``, ``shortfall_ratio`` x floor - signed), the floor
+    being ``ground_floor`` at its ``standing_rows``. Positive: farther than the ground there by more than
+    ``shortfall_px`` and below ``shortfall_ratio`` of it (one pair's verdict on both, so that the window's
+    majority, ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``."""
+    floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config))
+    if floor is None:
+        return None
+    margin = np.minimum(floor - parallax.signed - config.shortfall_px, config.shortfall_ratio * floor - parallax.signed)
+    return margin.astype(np.float32)
+
+
+def standing_rows(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
+                  config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray:
+    """(N,) float64 the row each track's object stands on at least: the lowest track below it in its column
+    (``_footing_columns``) at its own inverse depth within ``shortfall_same_depth``, or its own row (above the
+    epipole, and without such a track).
+
+    An upright static object is as near as the ground where it stands, and that lies at or below its lowest
+    track; a pedestrian walking away looks farther than the ground under its feet from every one of its tracks,
+    while its upper tracks look nearer than the road at their own rows (which lies farther away)."""
+    rows = x1[:, 1].astype(np.float64)
+    columns = None if parallax.epipole_row is None else _footing_columns(x1, parallax, ground, config)
+    if columns is not None:
+        tested, index, under, depth = columns
+        rows[tested] = _footing_base(rows[tested], x1[index, 1], under, depth[index], depth[tested],
+                                     config.shortfall_same_depth)
+    return rows
 
 
 def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
@@ -402,17 +434,11 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     """
     if parallax.epipole_row is None:
         return None
-    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
-    below_horizon = x1[:, 1] > parallax.epipole_row
-    footing = below_horizon & (parallax.gain > 0) & (depth > 0)
-    if ground is not None:
-        footing &= ~(ground < config.ground_ratio)
     excess = np.full(len(x1), np.nan, dtype=np.float32)
-    tested = np.flatnonzero(below_horizon)
-    column = _band_below(x1, np.flatnonzero(footing), tested, config.footing_band * float(np.ptp(x1[:, 0])))
-    if column is None:
+    columns = _footing_columns(x1, parallax, ground, config)
+    if columns is None:
         return excess
-    index, under = column
+    tested, index, under, depth = columns
     rows = x1[index, 1]
     k = config.footing_support
     support = (np.partition(np.where(under, depth[index], np.inf).astype(np.float32), k - 1, axis=1)[:, k - 1]
@@ -432,6 +458,22 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     decided = np.isfinite(ahead) & (ahead >= config.ground_min_px)
     excess[tested[decided]] = (parallax.signed[tested] - (1.0 + config.footing_margin) * ahead)[decided]
     return excess
+
+
+def _footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
+                     config: TrackMotionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """The tracks below the epipole (``tested``), the tracks under each in its column band (``footing_band`` of
+    the tracks' horizontal extent; ``index``, ``under`` as ``_band_below``) that may be a footing (in front of
+    infinity and, with ``ground``, not below ``ground_ratio``: a followed car looks farther than anything behind
+    it), and every track's inverse depth (signed / gain); None when no band holds one."""
+    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
+    below_horizon = x1[:, 1] > parallax.epipole_row
+    footing = below_horizon & (parallax.gain > 0) & (depth > 0)
+    if ground is not None:
+        footing &= ~(ground < config.ground_ratio)
+    tested = np.flatnonzero(below_horizon)
+    column = _band_below(x1, np.flatnonzero(footing), tested, config.footing_band * float(np.ptp(x1[:, 0])))
+    return None if column is None else (tested, *column, depth)
 
 
 def _footing_base(row: np.ndarray, rows: np.ndarray, under: np.ndarray, depths: np.ndarray, depth: np.ndarray,
@@ -470,7 +512,7 @@ def _band_below(x: np.ndarray, candidates: np.ndarray, tested: np.ndarray,
 class PairEvidence(NamedTuple):
     """One frame pair's evidence per track: ``distance`` as ``pair_residual``; given a camera matrix and a
     non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``ground_parallax_ratio``), ``footing``
-    (``footing_excess``) and ``shortfall`` (``ground_shortfall``), each None when not decided."""
+    (``footing_excess``) and ``shortfall`` (``standing_shortfall``), each None when not decided."""
 
     distance: np.ndarray
     signed: np.ndarray | None = None
@@ -521,10 +563,12 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     if parallax is None:
         return PairEvidence(distance)
     slope = ground_slope(x1, parallax, config)  # once for the ground, shortfall and footing tests
-    ground = None if slope is None else ground_parallax_ratio(x1, parallax, config, slope)
     signed = guessed_signs(x1, parallax, config.guessed_behind_share) if guessed else parallax.signed
-    shortfall = None if slope is None else ground_shortfall(x1, parallax, config, slope)
-    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope), shortfall)
+    if slope is None:
+        return PairEvidence(distance, signed, None, footing_excess(x1, parallax, None, config, slope))
+    ground = ground_parallax_ratio(x1, parallax, config, slope)
+    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope),
+                        standing_shortfall(x1, parallax, ground, config, slope))
 
 
 def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
@@ -591,8 +635,8 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
     """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (where the
     ``dense`` residual, when given, reaches ``corroboration`` times that distance, or the distance exceeds
     ``evident_factor`` times the threshold), whose median signed parallax is below -cheir_px, whose median
-    ground ratio is below ground_ratio, whose median footing excess is above footing_px, or whose median
-    shortfall is above shortfall_px with a median ground ratio below shortfall_ratio (where ``measurable``).
+    ground ratio is below ground_ratio, whose median footing excess is above footing_px, or that fall short of
+    the ground where they stand in most pairs (``short_of_ground``, where ``measurable``).
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
@@ -600,7 +644,7 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         signed: optional (N, P) signed parallax (NaN = not measured or pair undecided).
         ground: optional (N, P) ratios of ``ground_parallax_ratio`` (NaN = undecided).
         footing: optional (N, P) excesses of ``footing_excess`` (NaN = undecided).
-        shortfall: optional (N, P) shortfalls of ``ground_shortfall`` (NaN = undecided); needs ``ground``.
+        shortfall: optional (N, P) margins of ``standing_shortfall`` (NaN = undecided).
         dense: optional (N,) the dense flow's epipolar residual near each track, in the units of its distance
             (NaN: not known there, no corroboration asked).
         measurable: optional (N,) bool, the tracks whose image can show their parallax (``aperture_share``);
@@ -622,18 +666,18 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
         moving |= _median_below(ground, config.ground_ratio)
     if footing is not None:
         moving |= _median_below(-footing, -config.footing_px)
-    if shortfall is not None and ground is not None:
-        short = short_of_ground(shortfall, ground, config)
+    if shortfall is not None:
+        short = short_of_ground(shortfall)
         moving |= short if measurable is None else short & measurable
     return moving
 
 
-def short_of_ground(shortfall: np.ndarray, ground: np.ndarray,
-                    config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray:
-    """(N,) bool: tracks whose median shortfall over their pairs (N, P ``ground_shortfall``) is above
-    ``shortfall_px`` and whose median ground ratio (N, P ``ground_parallax_ratio``) is below ``shortfall_ratio``
-    (``moving_tracks``' ground shortfall test before its ``measurable`` check)."""
-    return _median_below(-shortfall, -config.shortfall_px) & _median_below(ground, config.shortfall_ratio)
+def short_of_ground(shortfall: np.ndarray) -> np.ndarray:
+    """(N,) bool: tracks short of the ground where they stand (a positive margin of ``standing_shortfall``,
+    (N, P)) in more than half of the pairs that measured them (``moving_tracks``' ground shortfall test before
+    its ``measurable`` check). A majority rather than the median: the median of an even count averages a pair
+    far short with one that is not."""
+    return np.count_nonzero(shortfall > 0, axis=1) > 0.5 * np.count_nonzero(~np.isnan(shortfall), axis=1)
 
 
 def aperture_share(gray: np.ndarray, points: np.ndarray, centre: np.ndarray, window: int) -> np.ndarray:

@@ -454,7 +454,7 @@ class MotionFrontEnd:
                 values = getattr(evidence, name)
                 if values is not None:
                     named[name][rows, -1] = values[known]
-        short = short_of_ground(named["shortfall"], named["ground"], self.config.track_motion)
+        short = short_of_ground(named["shortfall"])
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
                                     dense=self._dense_near(ids, observation, dense),
                                     measurable=self._measurable(ids, observation, short))]
