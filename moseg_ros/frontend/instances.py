@@ -26,7 +26,7 @@ def propose_regions(evidence: np.ndarray, min_area: int, close_px: int = 5) -> n
     kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px, close_px))
     mask = cv2.morphologyEx(evidence.astype(np.uint8), cv2.MORPH_CLOSE, kernel)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, kernel)
-    # The areas from a histogram of the labels: OpenCV's labelling with statistics took six times as long.
+    # The areas from a histogram of the labels: OpenCV's labelling with statistics costs several times as much.
     count, labels = cv2.connectedComponents(mask, connectivity=8)
     keep = np.zeros(count, dtype=np.int32)
     large = np.flatnonzero(np.bincount(labels.ravel(), minlength=count)[1:] >= min_area) + 1
