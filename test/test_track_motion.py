@@ -12,7 +12,8 @@ import pytest
 
 from conftest import pan_follow_flow
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
-                                         far_behind, footing_excess, ground_floor, ground_parallax_ratio,
+                                         far_behind, footing_columns, footing_excess, ground_floor,
+                                         ground_parallax_ratio,
                                          ground_slope, guessed_camera_matrix, may_be_planar,
                                          moving_tracks, pair_evidence, pair_residual, pair_residuals, row_medians,
                                          signed_parallax, standing_rows, standing_shortfall)
@@ -740,6 +741,31 @@ class TestStandingRows:
         tracks, _, _ = road(sideways=2.0)
         parallax = dataclasses.replace(_parallax(tracks[:, 0], tracks[:, 2]), epipole_row=None)
         np.testing.assert_array_equal(standing_rows(tracks[:, 0], parallax, None), tracks[:, 0, 1])
+
+
+class TestFootingColumns:
+    def test_shared_columns_give_what_each_test_finds_itself(self):
+        tracks, _ = walking_away()
+        x1 = tracks[:, 0]
+        parallax = _parallax(x1, tracks[:, 2])
+        ground = ground_parallax_ratio(x1, parallax)
+        columns = footing_columns(x1, parallax, ground)
+        assert columns.tested.size > 100 and columns.index.shape == columns.under.shape
+        assert columns.index.shape[0] == columns.tested.size and columns.depth.shape == (len(x1),)
+        assert (x1[columns.tested, 1] > parallax.epipole_row).all()
+        np.testing.assert_array_equal(footing_excess(x1, parallax, ground, columns=columns),
+                                      footing_excess(x1, parallax, ground))
+        np.testing.assert_array_equal(standing_rows(x1, parallax, ground, columns=columns),
+                                      standing_rows(x1, parallax, ground))
+
+    def test_without_a_footing_in_any_band_nothing_is_decided(self):
+        tracks, _ = walking_away()
+        x1 = tracks[:, 0]
+        behind = dataclasses.replace(_parallax(x1, tracks[:, 2]), signed=-np.abs(_parallax(x1, tracks[:, 2]).signed))
+        columns = footing_columns(x1, behind, None)
+        assert columns.tested.size == 0 and columns.index.shape == (0, 0)
+        assert np.isnan(footing_excess(x1, behind, None, columns=columns)).all()
+        np.testing.assert_array_equal(standing_rows(x1, behind, None, columns=columns), x1[:, 1])
 
 
 class TestFootingBase:

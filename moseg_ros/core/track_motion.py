@@ -374,14 +374,15 @@ def ground_floor(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig =
 
 
 def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
-                       config: TrackMotionConfig = TrackMotionConfig(),
-                       slope: float | None = None) -> np.ndarray | None:
+                       config: TrackMotionConfig = TrackMotionConfig(), slope: float | None = None,
+                       columns: FootingColumns | None = None) -> np.ndarray | None:
     """(N,) float32 pixels by which each track falls short of the ground where it stands by both of the shortfall
     test's measures: min(floor - signed - ``shortfall_px``, ``shortfall_ratio`` x floor - signed), the floor
     being ``ground_floor`` at its ``standing_rows``. Positive: farther than the ground there by more than
     ``shortfall_px`` and below ``shortfall_ratio`` of it (one pair's verdict on both, so that the window's
-    majority, ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``."""
-    floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config))
+    majority, ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``. ``columns``:
+    the pair's ``footing_columns`` when the caller has them."""
+    floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config, columns))
     if floor is None:
         return None
     margin = np.minimum(floor - parallax.signed - config.shortfall_px, config.shortfall_ratio * floor - parallax.signed)
@@ -389,25 +390,29 @@ def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | 
 
 
 def standing_rows(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
-                  config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray:
+                  config: TrackMotionConfig = TrackMotionConfig(),
+                  columns: FootingColumns | None = None) -> np.ndarray:
     """(N,) float64 the row each track's object stands on at least: the lowest track below it in its column
-    (``_footing_columns``) at its own inverse depth within ``shortfall_same_depth``, or its own row (above the
+    (``footing_columns``) at its own inverse depth within ``shortfall_same_depth``, or its own row (above the
     epipole, and without such a track).
 
     An upright static object is as near as the ground where it stands, and that lies at or below its lowest
     track; a pedestrian walking away looks farther than the ground under its feet from every one of its tracks,
-    while its upper tracks look nearer than the road at their own rows (which lies farther away)."""
+    while its upper tracks look nearer than the road at their own rows (which lies farther away). ``columns``:
+    the pair's ``footing_columns`` when the caller has them."""
     rows = x1[:, 1].astype(np.float64)
-    columns = None if parallax.epipole_row is None else _footing_columns(x1, parallax, ground, config)
-    if columns is not None:
-        tested, index, under, depth = columns
+    if parallax.epipole_row is None:
+        return rows
+    tested, index, under, depth = footing_columns(x1, parallax, ground, config) if columns is None else columns
+    if tested.size:
         rows[tested] = _footing_base(rows[tested], x1[index, 1], under, depth[index], depth[tested],
                                      config.shortfall_same_depth)
     return rows
 
 
 def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
-                   config: TrackMotionConfig = TrackMotionConfig(), slope: float | None = None) -> np.ndarray | None:
+                   config: TrackMotionConfig = TrackMotionConfig(), slope: float | None = None,
+                   columns: FootingColumns | None = None) -> np.ndarray | None:
     """(N,) float32 pixels by which each track's parallax exceeds what the surface under it allows.
 
     For a track below the epipole, the tracks below it within ``footing_band`` of the tracks' horizontal extent
@@ -435,10 +440,9 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     if parallax.epipole_row is None:
         return None
     excess = np.full(len(x1), np.nan, dtype=np.float32)
-    columns = _footing_columns(x1, parallax, ground, config)
-    if columns is None:
+    tested, index, under, depth = footing_columns(x1, parallax, ground, config) if columns is None else columns
+    if not tested.size:
         return excess
-    tested, index, under, depth = columns
     rows = x1[index, 1]
     k = config.footing_support
     support = (np.partition(np.where(under, depth[index], np.inf).astype(np.float32), k - 1, axis=1)[:, k - 1]
@@ -460,12 +464,23 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     return excess
 
 
-def _footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
-                     config: TrackMotionConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """The tracks below the epipole (``tested``), the tracks under each in its column band (``footing_band`` of
-    the tracks' horizontal extent; ``index``, ``under`` as ``_band_below``) that may be a footing (in front of
-    infinity and, with ``ground``, not below ``ground_ratio``: a followed car looks farther than anything behind
-    it), and every track's inverse depth (signed / gain); None when no band holds one."""
+class FootingColumns(NamedTuple):
+    """What lies under each track of a pair (``footing_columns``): the tracks below the epipole (``tested``, (T,)
+    indices), the tracks under each in its column band (``index`` (T, run) and ``under`` (T, run) bool, as
+    ``_band_below``; T = 0 when no band holds one) and every track's inverse depth (``depth`` (N,), signed /
+    gain)."""
+
+    tested: np.ndarray
+    index: np.ndarray
+    under: np.ndarray
+    depth: np.ndarray
+
+
+def footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
+                    config: TrackMotionConfig = TrackMotionConfig()) -> FootingColumns:
+    """The column under each track below the epipole (``footing_band`` of the tracks' horizontal extent) and the
+    tracks in it that may be a footing: in front of infinity and, with ``ground``, not below ``ground_ratio`` (a
+    followed car looks farther than anything behind it). The footing and standing tests share them."""
     depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
     below_horizon = x1[:, 1] > parallax.epipole_row
     footing = below_horizon & (parallax.gain > 0) & (depth > 0)
@@ -473,7 +488,9 @@ def _footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | No
         footing &= ~(ground < config.ground_ratio)
     tested = np.flatnonzero(below_horizon)
     column = _band_below(x1, np.flatnonzero(footing), tested, config.footing_band * float(np.ptp(x1[:, 0])))
-    return None if column is None else (tested, *column, depth)
+    if column is None:
+        return FootingColumns(tested[:0], np.zeros((0, 0), dtype=np.int64), np.zeros((0, 0), dtype=bool), depth)
+    return FootingColumns(tested, *column, depth)
 
 
 def _footing_base(row: np.ndarray, rows: np.ndarray, under: np.ndarray, depths: np.ndarray, depth: np.ndarray,
@@ -567,8 +584,9 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     if slope is None:
         return PairEvidence(distance, signed, None, footing_excess(x1, parallax, None, config, slope))
     ground = ground_parallax_ratio(x1, parallax, config, slope)
-    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope),
-                        standing_shortfall(x1, parallax, ground, config, slope))
+    columns = footing_columns(x1, parallax, ground, config)  # once for the footing and shortfall tests
+    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope, columns),
+                        standing_shortfall(x1, parallax, ground, config, slope, columns))
 
 
 def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
