@@ -433,6 +433,7 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
             is not decided).
         slope: the pair's ``ground_slope`` when the caller has it (computed here otherwise, when ``ground``
             is given).
+        columns: the pair's ``footing_columns`` when the caller has them (found here otherwise).
 
     Returns:
         Excesses, NaN where not decided; None when the camera does not move forward.
