@@ -96,6 +96,7 @@ class SegmenterNode(Node):
         self._camera_size: tuple[int, int] = (0, 0)
         self._last_warning: dict[str, float] = {}
         self._newest_masks: Masks | None = None  # what a carried frame gets
+        self._free_since = -np.inf  # when the worker was done with its last frame (how long a queued one waited)
         self._publishing = threading.Lock()  # the worker and the executor (carried frames) both publish
 
         reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
@@ -162,13 +163,23 @@ class SegmenterNode(Node):
     def _overflow(self, msg: Any) -> None:
         """The oldest queued frame leaves the queue unprocessed: carry the newest masks to it, or drop it."""
         masks = self._newest_masks
-        if self.settings["overflow"] == "carry" and masks is not None and declared_size(msg) == masks.dynamic.shape:
+        if self.settings["overflow"] == "carry" and _fits(msg, masks):
             self._publish_masks(msg.header, masks)
             self.counters.carried += 1
             self._warn("carried", "worker is behind: the oldest queued frame got the newest masks")
             return
         self.counters.dropped += 1
         self._warn("dropped", "worker is behind: dropped the oldest queued frame")
+
+    def _stale(self, msg: Any, arrived: float) -> bool:
+        """Whether a frame waited for the busy worker longer than ``max_wait_ms`` (from its arrival to the moment the
+        worker was done with the frame before) and may leave the queue unprocessed (``_overflow``): carried when
+        the newest masks fit it, dropped with ``overflow`` drop; with nothing to carry it is processed (every
+        decodable frame gets masks). A frame that came while the worker was free never waited, however late the
+        worker thread wakes."""
+        if (self._free_since - arrived) * 1e3 <= self.settings["max_wait_ms"]:
+            return False
+        return self.settings["overflow"] == "drop" or _fits(msg, self._newest_masks)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         # moving_objects uses K for its cheirality test; without it (or for another image size) K is guessed.
@@ -198,12 +209,16 @@ class SegmenterNode(Node):
                 if not self._running:
                     return
                 msg, arrived = self._queue.popleft()
+            if self._stale(msg, arrived):
+                self._overflow(msg)
+                continue
             try:
                 self._handle(msg, arrived)
             except Exception as error:  # the node must outlive any single bad frame
                 self.counters.failures += 1
                 self.get_logger().error(f"frame at {_stamp_text(msg)} failed: {error!r}",
                                         throttle_duration_sec=self.settings["warn_throttle_s"])
+            self._free_since = time.monotonic()
 
     def _take_instances(self, msg: Any) -> np.ndarray | None:
         if not self.settings["use_instances"]:
@@ -315,6 +330,11 @@ def _rate(times: collections.deque[float]) -> float:
     if len(times) < 2 or times[-1] <= times[0]:
         return 0.0
     return (len(times) - 1) / (times[-1] - times[0])
+
+
+def _fits(msg: Any, masks: Masks | None) -> bool:
+    """Whether ``masks`` can be carried to the frame of ``msg``: there are some, of its declared size."""
+    return masks is not None and declared_size(msg) == masks.dynamic.shape
 
 
 def _stamp_text(msg: Any) -> str:

@@ -97,6 +97,11 @@ class NodeSettings:
                             "newest masks under its own header at once (counted `carried`: as old as the newest "
                             "processed frame), `drop` publishes nothing for it (counted `dropped`)",
                             choices=OVERFLOW_CHOICES)
+    max_wait_ms: float = setting(0.0, "a frame that waited longer than this for the busy worker leaves the queue "
+                                 "unprocessed as on overflow (carried when the newest masks fit it, else processed; "
+                                 "with `overflow` drop, dropped): its mask would come late. 0: only frames that came "
+                                 "while the worker was free are processed, the lowest latency; raise it to buffer "
+                                 "bursts with `queue_size`", low=0.0, high=60_000.0)
     diagnostics_period_s: float = setting(1.0, "period of /diagnostics", low=0.1, high=60.0)
     warn_throttle_s: float = setting(5.0, "minimum time between repeated warnings of one kind", low=0.0,
                                      high=600.0)

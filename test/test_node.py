@@ -34,7 +34,7 @@ def segmenter(ros_domain, tmp_path):
     holds every frame these tests send, so a busy machine slows them down instead of dropping frames (drops
     have their own test)."""
     log = tmp_path / "segmenter.log"
-    process = start_segmenter(ros_domain, log, params=["queue_size:=50"])
+    process = start_segmenter(ros_domain, log, params=["queue_size:=50", "max_wait_ms:=60000.0"])
     yield process, log
     stop_segmenter(process)
 
@@ -262,7 +262,7 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
 def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, monkeypatch):
     log = tmp_path / "log"
     process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50",
-                                                       "overflow:=drop"])
+                                                       "overflow:=drop", "max_wait_ms:=60000.0"])
     probe = _Probe(ros_domain, monkeypatch)
     try:
         assert probe.wait_for_node(), log.read_text()
@@ -303,6 +303,34 @@ def test_overflow_carries_the_newest_masks_to_every_skipped_frame(ros_domain, tm
         stamps = sorted(stamp_to_ns(m.header.stamp) for m in probe.masks)
         assert stamps == [(40 + i) * 1_000_000_000 for i in range(15)]
         assert all(m.header.frame_id == "camera" and (m.height, m.width) == (375, 1242) for m in probe.masks)
+        assert process.poll() is None
+    finally:
+        probe.close()
+        stop_segmenter(process)
+
+
+@pytest.mark.parametrize("overflow", ["carry", "drop"])
+def test_frames_that_waited_too_long_leave_the_queue_unprocessed(ros_domain, tmp_path, monkeypatch, overflow):
+    """``max_wait_ms`` 0, the default: a queue deep enough for the whole burst, but a frame that came while the worker
+    was busy is carried (or dropped) as on overflow. The first frame came to a free worker and is processed."""
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["queue_size:=50", "image_qos:=reliable", "qos_depth:=50",
+                                                       f"overflow:={overflow}"])
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.wait_for_node(), log.read_text()
+        for i, frame in enumerate(textured_frames(15, 375, 1242)):  # a burst far faster than the worker
+            probe.publisher.publish(_image(frame, (40 + i) * 1_000_000_000))
+        assert probe.spin_until(lambda: probe.diagnostics.get("frames_in") == "15"
+                                and probe.diagnostics.get("queued") == "0", 30), probe.diagnostics
+        probe.spin_until(lambda: False, 1.5)  # one more diagnostics period after the last frame is out
+        counts = {k: int(probe.diagnostics[k]) for k in ("frames_out", "carried", "dropped")}
+        skipped = "carried" if overflow == "carry" else "dropped"
+        assert counts[skipped] >= 10 and counts["frames_out"] + counts[skipped] == 15, counts
+        assert counts["carried" if overflow == "drop" else "dropped"] == 0, counts
+        stamps = sorted(stamp_to_ns(m.header.stamp) for m in probe.masks)
+        assert stamps[0] == 40 * 1_000_000_000  # the first frame came to a free worker
+        assert len(stamps) == (15 if overflow == "carry" else counts["frames_out"]), (len(stamps), counts)
         assert process.poll() is None
     finally:
         probe.close()
@@ -358,7 +386,8 @@ def test_object_level_node_flags_the_moving_cars_of_the_busy_street(ros_domain, 
     ids = {name: i for i, name in sequence.object_names.items()}
     log = tmp_path / "log"
     process = start_segmenter(ros_domain, log, params=["method:=object_level", "use_instances:=true",
-                                                       "mask_margin_px:=0", "queue_size:=20"])
+                                                       "mask_margin_px:=0", "queue_size:=20",
+                                                       "max_wait_ms:=60000.0"])
     probe = _Probe(ros_domain, monkeypatch)
     instances = probe.node.create_publisher(Image, "/instances", RELIABLE)
     try:

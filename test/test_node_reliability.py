@@ -19,7 +19,8 @@ from test_node import _Probe  # noqa: E402
 
 SECOND = 1_000_000_000
 N_RAW, N_COMPRESSED = 2400, 1200
-PARAMS = ["image_qos:=reliable", "qos_depth:=100", "queue_size:=100", "warn_throttle_s:=1.0"]
+PARAMS = ["image_qos:=reliable", "qos_depth:=100", "queue_size:=100", "max_wait_ms:=60000.0",
+          "warn_throttle_s:=1.0"]
 
 
 def _header(stamp_ns: int, frame_id: str = "camera") -> Header:

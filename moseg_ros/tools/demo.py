@@ -119,9 +119,9 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
     masks_bag = out_dir / "masks"
     shutil.rmtree(masks_bag, ignore_errors=True)
     object_level = method == "object_level"
-    # A replayed bag is offline work: the node's queue holds every frame (none dropped), so latency includes
-    # the wait in the queue whenever the method is slower than the bag's rate.
-    params = [f"method:={method}", f"queue_size:={min(max(frames, 4), 100)}"]
+    # A replayed bag is offline work: the node's queue holds every frame and each waits for the worker however
+    # long (none dropped or carried), so latency includes the wait whenever the method is slower than the bag.
+    params = [f"method:={method}", f"queue_size:={min(max(frames, 4), 100)}", "max_wait_ms:=60000.0"]
     params += ["use_instances:=true"] if object_level else []
     node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
