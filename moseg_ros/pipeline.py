@@ -116,8 +116,8 @@ class FrameResult:
         refit_age: frames between this frame and the refit whose decision it got (0: its own; None: none).
         refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
         stages: seconds per stage of this frame: prepare (grey, instances resized), the method's own stages (for
-            moving_objects: tracks, fit, flow, dense_fit, regions and method_other; "decision" for methods that
-            report none), render.
+            moving_objects: tracks, fit, flow, dense_flow, dense_fit, regions and method_other; "decision" for
+            methods that report none), render.
     """
 
     stamp_ns: int

@@ -3,9 +3,10 @@
 Prints mean, p50, p95 and max milliseconds per frame, p50 / p95 per stage (decode, prepare, tracks, flow,
 regions, render ... as the method reports them), the refit's milliseconds on its worker and the age of the
 decisions the frames applied (the node's ``refit`` auto: background), and the floor measured in the same run on
-the same frames: KLT tracking at ``track_width`` plus dense DIS flow both ways at ``working_width`` with
-the method's preset and nothing else, the least any method of this design does per frame. ``ratio`` is the
-pipeline's p95 over the floor's. The node keeps up with a camera when p95 stays under the frame period.
+the same frames: KLT tracking at ``track_width`` plus the dense DIS flow back to the frame before at
+``working_width`` with the method's preset and nothing else, the least any method of this design does per
+frame. ``ratio`` is the pipeline's p95 over the floor's. The node keeps up with a camera when p95 stays under the
+frame period.
 Frames come back to back, or with ``--rate HZ`` at a camera's pace: then the refit's worker gets the time the
 frame path leaves between frames, as in the node, and the decisions' age says how often it refits.
 """
@@ -34,11 +35,12 @@ def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
 
 
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
-    """Milliseconds per frame (after the first) of KLT tracking plus DIS flow both ways and nothing else.
+    """Milliseconds per frame (after the first) of KLT tracking plus the DIS flow back to the frame before and
+    nothing else: what the front-end's frame path cannot do without.
 
     KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, guided by the
-    dense flows and its backward check shared with them as the front-end does; flow: the DIS preset the
-    method runs, between consecutive frames at ``working_width``.
+    dense flow and its backward check shared with it as the front-end does; flow: the DIS preset the method
+    runs, from each frame back to the one before at ``working_width``.
     """
     from moseg_ros.frontend.flow import DenseFlow
     from moseg_ros.frontend.motion import resized_to_width
@@ -53,10 +55,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     ms = []
     for i in range(len(frames)):
         start = time.perf_counter()
-        flows = (None, None)
-        if i:
-            flows = (flow(dense[i], dense[i - 1]), flow(dense[i - 1], dense[i]))
-        tracks.update(tracking[i], *flows)
+        tracks.update(tracking[i], flow(dense[i], dense[i - 1]) if i else None)
         ms.append((time.perf_counter() - start) * 1e3)
     return np.array(ms[1:])
 

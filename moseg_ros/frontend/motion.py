@@ -225,12 +225,14 @@ class Observation:
         alive: ids of the tracks living now.
         camera_matrix: (3, 3) K at the tracking size (guessed when ``guessed``).
         guessed: True when K is a guess (no camera_info).
-        flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None.
+        flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None; the frame
+            path computes only the backward one (forward None), the refit the forward one from ``earlier``.
         gray: the frame at the dense size (for the texture gate).
         tracking_shape: (H, W) of the frame as tracked (``camera_matrix``'s size).
         long_span: frames between the long pair's two frames (0 without one).
         backward: (frame, backward dense flow to the frame before) of the last frames, oldest first and this
             frame last, to carry an earlier refit's dense mask to this frame.
+        earlier: the frame ``dense_gap`` back at the dense size (for the refit's forward flow), or None.
     """
 
     index: int
@@ -244,6 +246,7 @@ class Observation:
     tracking_shape: tuple[int, int]
     long_span: int = 0
     backward: tuple[tuple[int, np.ndarray], ...] = ()
+    earlier: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -271,6 +274,8 @@ class MotionFrontEnd:
         self.config = config
         self._points = PointTracker(config.tracks)
         self._flow = flow or DenseFlow("fast")
+        # The refit's own: a DIS instance is not to be shared between threads.
+        self._refit_flow = DenseFlow(self._flow.preset)
         self._regions = InstanceTracker()
         self.stages = Stages()
         self.reset()
@@ -310,8 +315,9 @@ class MotionFrontEnd:
 
         ``moving`` then holds the frame's (h, w) bool evidence (hulls and dense residual) before grouping,
         ``moving_track_points`` the (M, 2) positions of its moving tracks (tracking pixels), and
-        ``stages.seconds`` the time of each stage: tracks, flow (dense flow both ways), fit (pair fits and
-        the track test), dense_fit (the dense residual test) and regions (hulls, carrying, regions)."""
+        ``stages.seconds`` the time of each stage: tracks, flow (the dense flow back to the frame before), fit
+        (pair fits and the track test), dense_flow (the dense flow forward, for the residual's check), dense_fit
+        (the dense residual test) and regions (hulls, carrying, regions)."""
         observation = self.observe(gray, camera_matrix)
         refit = self.refit(observation)
         labels = self.apply(refit)
@@ -319,24 +325,25 @@ class MotionFrontEnd:
         return labels
 
     def observe(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> Observation:
-        """The frame path's part: compute the dense flow, track into ``gray``; returns what the refit needs.
+        """The frame path's part: compute the dense flow back to the frame before, track into ``gray``; returns
+        what the refit needs.
 
         Clears ``stages`` (a new frame)."""
         self.stages.clear()
         self._index += 1
         with self.stages("tracks"):
             self._grays.append(resized_to_width(gray, self.config.dense_width))
-        flows = None
+        flows, earlier = None, None
         if self.config.dense and len(self._grays) > self.config.dense_gap:
             with self.stages("flow"):
                 earlier, now = self._grays[0], self._grays[-1]
-                flows = (self._flow(now, earlier), self._flow(earlier, now))
+                # Only the backward flow: the refit computes the forward one it needs off the frame path.
+                flows = (self._flow(now, earlier), None)
             self._backward.append((self._index, flows[0]))
         with self.stages("tracks"):
-            # The dense flows to and from the previous frame are the tracks' starting guess and backward check
-            # too (frontend/tracks.py).
-            adjacent = flows if flows is not None and self.config.dense_gap == 1 else (None, None)
-            self._points.update(gray, *adjacent)
+            # The dense flow back to the previous frame is the tracks' starting guess (inverted) and backward
+            # check too (frontend/tracks.py).
+            self._points.update(gray, flows[0] if flows is not None and self.config.dense_gap == 1 else None)
             self._frames.append((self._points.ids.copy(), self._points.points.copy()))
         gap = self.config.track_motion.gap
         pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None
@@ -349,7 +356,7 @@ class MotionFrontEnd:
         self._tracking_shape = gray.shape
         return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, guessed, flows,
                            self._grays[-1], gray.shape, len(self._frames) - 1 if long_pair is not None else 0,
-                           tuple(self._backward))
+                           tuple(self._backward), earlier)
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
@@ -357,8 +364,12 @@ class MotionFrontEnd:
         stages = Stages()
         evidence = None
         if observation.flows is not None:
+            backward, forward = observation.flows
+            if forward is None:
+                with stages("dense_flow"):
+                    forward = self._refit_flow(observation.earlier, observation.gray)
             with stages("dense_fit"):
-                evidence = epipolar_residual(*observation.flows, self.config.dense_baseline)
+                evidence = epipolar_residual(backward, forward, self.config.dense_baseline)
         with stages("fit"):
             flagged = self._flagged(observation, evidence)
         dense = None
