@@ -153,8 +153,8 @@ def landing(backward_flow: np.ndarray, points: np.ndarray, shape: tuple[int, int
     frame of ``shape`` (H, W): the q with q + b(q) = p, by fixed-point rounds q <- p - b(q) from q = p.
 
     Each round's error is the flow's change over the last one's error, so two rounds land within a fraction of
-    a pixel wherever the flow is smooth (the same accuracy as sampling a forward flow at p, which would cost a
-    second dense flow)."""
+    a pixel wherever the flow is smooth, close to what sampling a forward flow at p gives, which would cost a
+    second dense flow."""
     guess = points
     for _ in range(rounds):
         guess = points - _sampled(backward_flow, guess, shape)
