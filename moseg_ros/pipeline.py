@@ -72,7 +72,7 @@ class PipelineConfig:
     refit_nice: int = setting(10, "moving_objects: niceness added to the background refit's thread, so on a busy "
                               "CPU the frame path goes first and the refit takes the time left (0: same priority)",
                               low=0, high=19)
-    refit_duty: float = setting(0.5, "moving_objects: the largest share of the time the background refit may fit; "
+    refit_duty: float = setting(0.75, "moving_objects: the largest share of the time the background refit may fit; "
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
