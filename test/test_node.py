@@ -14,7 +14,7 @@ import pytest
 from conftest import textured_frames
 from moseg_ros.io.bags import iter_messages, stamp_to_ns
 from moseg_ros.tools.dds import loopback_env
-from moseg_ros.tools.demo import start_segmenter, stop_segmenter
+from moseg_ros.tools.demo import every_frame_params, start_segmenter, stop_segmenter
 
 pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
 import rclpy  # noqa: E402
@@ -34,7 +34,7 @@ def segmenter(ros_domain, tmp_path):
     holds every frame these tests send, so a busy machine slows them down instead of dropping frames (drops
     have their own test)."""
     log = tmp_path / "segmenter.log"
-    process = start_segmenter(ros_domain, log, params=["queue_size:=50", "max_wait_ms:=60000.0"])
+    process = start_segmenter(ros_domain, log, params=every_frame_params(50))
     yield process, log
     stop_segmenter(process)
 
@@ -261,8 +261,8 @@ def test_compressed_input(ros_domain, tmp_path, monkeypatch):
 
 def test_overflow_drops_the_oldest_frames_and_counts_them(ros_domain, tmp_path, monkeypatch):
     log = tmp_path / "log"
-    process = start_segmenter(ros_domain, log, params=["queue_size:=1", "image_qos:=reliable", "qos_depth:=50",
-                                                       "overflow:=drop", "max_wait_ms:=60000.0"])
+    process = start_segmenter(ros_domain, log, params=[*every_frame_params(1), "image_qos:=reliable", "qos_depth:=50",
+                                                       "overflow:=drop"])
     probe = _Probe(ros_domain, monkeypatch)
     try:
         assert probe.wait_for_node(), log.read_text()
@@ -386,8 +386,7 @@ def test_object_level_node_flags_the_moving_cars_of_the_busy_street(ros_domain, 
     ids = {name: i for i, name in sequence.object_names.items()}
     log = tmp_path / "log"
     process = start_segmenter(ros_domain, log, params=["method:=object_level", "use_instances:=true",
-                                                       "mask_margin_px:=0", "queue_size:=20",
-                                                       "max_wait_ms:=60000.0"])
+                                                       "mask_margin_px:=0", *every_frame_params(20)])
     probe = _Probe(ros_domain, monkeypatch)
     instances = probe.node.create_publisher(Image, "/instances", RELIABLE)
     try:

@@ -10,7 +10,7 @@ import pytest
 
 from conftest import textured_frames
 from moseg_ros.io.bags import stamp_to_ns
-from moseg_ros.tools.demo import start_segmenter
+from moseg_ros.tools.demo import every_frame_params, start_segmenter
 
 pytest.importorskip("rclpy", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
 from sensor_msgs.msg import CompressedImage, Image  # noqa: E402
@@ -19,8 +19,7 @@ from test_node import _Probe  # noqa: E402
 
 SECOND = 1_000_000_000
 N_RAW, N_COMPRESSED = 2400, 1200
-PARAMS = ["image_qos:=reliable", "qos_depth:=100", "queue_size:=100", "max_wait_ms:=60000.0",
-          "warn_throttle_s:=1.0"]
+PARAMS = ["image_qos:=reliable", "qos_depth:=100", *every_frame_params(100), "warn_throttle_s:=1.0"]
 
 
 def _header(stamp_ns: int, frame_id: str = "camera") -> Header:

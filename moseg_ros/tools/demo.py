@@ -24,6 +24,7 @@ import numpy as np
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
 from moseg_ros.io.bags import read_images
 from moseg_ros.methods import DEFAULT_METHOD
+from moseg_ros.params import all_settings
 from moseg_ros.pipeline import METHODS
 from moseg_ros.synth.scenarios import build_scene
 from moseg_ros.synth.street import GT_TOPICS, render_frames, write_frames
@@ -40,6 +41,13 @@ def segmenter_command() -> list[str]:
         return [str(script)]
     found = shutil.which("segmenter")
     return [found] if found else [sys.executable, "-m", "moseg_ros.node"]
+
+
+def every_frame_params(queue_size: int) -> list[str]:
+    """Node parameters under which a queue of ``queue_size`` frames holds what comes and each frame waits for the
+    worker as long as ``max_wait_ms`` allows at most: none is carried or dropped while the queue has room."""
+    longest = next(entry.high for entry in all_settings() if entry.name == "max_wait_ms")
+    return [f"queue_size:={queue_size}", f"max_wait_ms:={float(longest)}"]
 
 
 def start_segmenter(domain_id: int, log_path: Path, params: list[str] = ()) -> subprocess.Popen:
@@ -121,7 +129,7 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
     object_level = method == "object_level"
     # A replayed bag is offline work: the node's queue holds every frame and each waits for the worker however
     # long (none dropped or carried), so latency includes the wait whenever the method is slower than the bag.
-    params = [f"method:={method}", f"queue_size:={min(max(frames, 4), 100)}", "max_wait_ms:=60000.0"]
+    params = [f"method:={method}", *every_frame_params(min(max(frames, 4), 100))]
     params += ["use_instances:=true"] if object_level else []
     node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
