@@ -62,7 +62,9 @@ slower than the camera passes under it. The road itself gives a second, tighter 
 at or above the first road track below it (a track within ``footing_road_tol`` of the ground's parallax), and
 no higher than its own lowest track (the lowest one under it at its inverse depth, within
 ``footing_same_depth``: beside a thin pole's trunk the road behind the pole is visible, and it is no
-footing), so the fitted ground's inverse depth at the lower of those rows bounds it.
+footing), so the fitted ground's inverse depth at the lower of those rows bounds it. A road track is never the
+object's own: an oncoming car seems as near as the road some way in front of it, and that road, seen under the
+car's columns, would otherwise pass for the car's lowest part.
 """
 
 from __future__ import annotations
@@ -420,7 +422,7 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     column or, when lower and ``ground`` is given, the ground's inverse depth at the row the track's object
     stands on: the lower of the column's first road track (a ground ratio within ``footing_road_tol`` of 1) and
     the object's lowest track (``_footing_base``: the lowest track of the column at the track's own inverse
-    depth, within ``footing_same_depth``). The excess is
+    depth, within ``footing_same_depth``, that is not a road track itself). The excess is
     ``signed - (1 + footing_margin) x footing x gain``. A static track's excess is negative; an oncoming car's
     is positive (it closes in faster than the camera drives and looks nearer than the road under it).
 
@@ -454,7 +456,7 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
         slope = ground_slope(x1, parallax, config)
     if slope is not None:
         road = under & (np.abs(ground[index] - 1.0) <= config.footing_road_tol)
-        base = _footing_base(x1[tested, 1], rows, under, depth[index], depth[tested], config.footing_same_depth)
+        base = _footing_base(x1[tested, 1], rows, under & ~road, depth[index], depth[tested], config.footing_same_depth)
         first_road = np.where(road, rows, np.inf).min(axis=1)
         found = np.isfinite(first_road)
         stands = np.maximum(first_road[found], base[found])
