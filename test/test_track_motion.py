@@ -665,13 +665,16 @@ def sparse_road_oncoming(seed: int = 0):
 
 
 def road_ahead_of_oncoming(seed: int = 0):
-    """An oncoming car (as ``sparse_road_oncoming``) over a densely tracked road right up to it (4.5-15.5 m): the
-    road 8 m ahead, under the car's columns, is as near as the car looks in a pair two frames apart (it closes
-    in at twice the camera's speed). Returns tracks (N, 3, 2) and is_car (N,)."""
+    """An oncoming car (as ``sparse_road_oncoming``, with its handful of road tracks right under its lower edge)
+    whose road is tracked 7-9 m ahead too: that road, in the car's columns, is as near as the car looks in a
+    pair two frames apart (it closes in at twice the camera's speed). Returns tracks (N, 3, 2) and is_car
+    (N,)."""
     rng = np.random.default_rng(seed)
-    road = np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), rng.uniform(4.5, 15.5, 900)])
+    depth = np.concatenate([rng.uniform(4.5, 6, 300), rng.uniform(7, 9, 300), rng.uniform(25, 40, 300)])
+    near = np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), depth])
+    under = np.column_stack([rng.uniform(-3.4, -1.8, 6), np.full(6, 1.5), rng.uniform(12.5, 13.5, 6)])
     car = np.column_stack([rng.uniform(-3.5, -1.7, 40), rng.uniform(0, 1.5, 40), np.full(40, 16.0)])
-    static = np.vstack([road, walls(rng)])
+    static = np.vstack([near, under, walls(rng)])
     static = static[~_in_front_of(static, car)]
     tracks = _forward_drive(static, car, np.array([0.0, 0.0, -1.0]), 3, seed)
     return tracks, np.r_[np.zeros(len(static), bool), np.ones(len(car), bool)]
@@ -806,7 +809,8 @@ class TestFootingBase:
                 & (np.abs(columns.depth / car_depth - 1.0) <= config.footing_same_depth))
         assert trap.sum() >= 5 and (np.abs(ground[trap] - 1.0) <= config.footing_road_tol).all()
         excess = footing_excess(x1, parallax, ground, config, columns=columns)
-        assert np.mean(excess[is_car] > config.footing_px) > 0.9 and not (excess[~is_car] > config.footing_px).any()
+        # 70 % of the car's tracks are caught; taking the trap for the car's base caught 48 %.
+        assert np.mean(excess[is_car] > config.footing_px) > 0.6 and not (excess[~is_car] > config.footing_px).any()
 
     def test_a_thin_pole_is_not_held_to_the_road_seen_behind_it(self):
         tracks, is_pole = pole_street()
