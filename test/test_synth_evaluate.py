@@ -35,6 +35,13 @@ def test_without_instances_an_object_is_flagged_by_the_share_of_it_in_the_mask()
     assert everything["car_crossing"]["flagged"] == 7  # cover 0: every object-frame counts as flagged
 
 
+def test_the_small_crossing_pedestrian_is_caught_from_three_tracks():
+    """At 621 px the pedestrian (11x31 px) holds 2-5 tracks: a hull needs three flagged ones (four caught it in 5
+    of its 13 scored frames, three in all 13)."""
+    scores = score_scene("pedestrian", 0, PipelineConfig(), n_frames=16, width=621, instances=False)
+    assert scores["pedestrian"]["seen"] == 13 and scores["pedestrian"]["flagged"] >= 10
+
+
 def test_command_prints_and_writes_totals(tmp_path, capsys):
     out = tmp_path / "scores.json"
     assert main(["synth-eval", "--presets", "parked", "--seeds", "1", "--frames", "6", "--json", str(out)]) == 0

@@ -76,7 +76,8 @@ class MotionFrontEndConfig:
     sticky_windows: int = 2
     sticky_frames: int = 8
     link_fraction: float = 0.032
-    min_group: int = 4
+    # Three linked flagged tracks make a region: a pedestrian at 621 px holds two to five tracks (README).
+    min_group: int = 3
     # A moving object carries its tracks along, so tracks that lived through the whole window unflagged are
     # static evidence: a hull where they outnumber the flagged tracks is scattered noise (water, a crowd,
     # drifting tracks in foliage), not an object. Young tracks do not count: a moving car keeps gaining new
