@@ -656,12 +656,7 @@ def sparse_road_oncoming(seed: int = 0):
     rng = np.random.default_rng(seed)
     road = np.column_stack([rng.uniform(-6, 6, 600), np.full(600, 1.5),
                             np.where(rng.random(600) < 0.5, rng.uniform(4.5, 6, 600), rng.uniform(25, 40, 600))])
-    under = np.column_stack([rng.uniform(-3.4, -1.8, 6), np.full(6, 1.5), rng.uniform(12.5, 13.5, 6)])
-    car = np.column_stack([rng.uniform(-3.5, -1.7, 40), rng.uniform(0, 1.5, 40), np.full(40, 16.0)])
-    static = np.vstack([road, under, walls(rng)])
-    static = static[~_in_front_of(static, car)]
-    tracks = _forward_drive(static, car, np.array([0.0, 0.0, -1.0]), 3, seed)
-    return tracks, np.r_[np.zeros(len(static), bool), np.ones(len(car), bool)]
+    return _oncoming_over(road, rng, seed)
 
 
 def road_ahead_of_oncoming(seed: int = 0):
@@ -671,10 +666,16 @@ def road_ahead_of_oncoming(seed: int = 0):
     (N,)."""
     rng = np.random.default_rng(seed)
     depth = np.concatenate([rng.uniform(4.5, 6, 300), rng.uniform(7, 9, 300), rng.uniform(25, 40, 300)])
-    near = np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), depth])
+    return _oncoming_over(np.column_stack([rng.uniform(-6, 6, 900), np.full(900, 1.5), depth]), rng, seed)
+
+
+def _oncoming_over(road: np.ndarray, rng: np.random.Generator, seed: int):
+    """The oncoming car of ``sparse_road_oncoming`` over ``road`` points plus a handful of road tracks right under
+    its lower edge (12.5-13.5 m) and the walls; points it hides are left out. Returns tracks (N, 3, 2) and
+    is_car (N,)."""
     under = np.column_stack([rng.uniform(-3.4, -1.8, 6), np.full(6, 1.5), rng.uniform(12.5, 13.5, 6)])
     car = np.column_stack([rng.uniform(-3.5, -1.7, 40), rng.uniform(0, 1.5, 40), np.full(40, 16.0)])
-    static = np.vstack([near, under, walls(rng)])
+    static = np.vstack([road, under, walls(rng)])
     static = static[~_in_front_of(static, car)]
     tracks = _forward_drive(static, car, np.array([0.0, 0.0, -1.0]), 3, seed)
     return tracks, np.r_[np.zeros(len(static), bool), np.ones(len(car), bool)]
