@@ -72,6 +72,27 @@ def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path
     assert "moseg process: error:" in capsys.readouterr().err
 
 
+def test_overwrite_replaces_an_earlier_output_bag_and_nothing_else(textured_bag, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert moseg(["process", str(textured_bag), "-o", str(out), "--no-progress", "--method", "epipolar_baseline"]) == 0
+    baseline = _masks(out)
+    assert moseg(["process", str(textured_bag), "-o", str(out), "--no-progress"]) == 2
+    assert "--overwrite replaces" in capsys.readouterr().err
+    assert moseg(["process", str(textured_bag), "-o", str(out), "--no-progress", "--overwrite"]) == 0
+    replaced = _masks(out)
+    assert sorted(replaced) == sorted(baseline)
+    assert any(not np.array_equal(replaced[s], baseline[s]) for s in baseline)  # the default method's masks now
+    assert len(list(out.glob("*.mcap"))) == 1
+    folder = tmp_path / "notes"
+    folder.mkdir()
+    (folder / "keep.txt").write_text("mine")
+    assert moseg(["process", str(textured_bag), "-o", str(folder), "--no-progress", "--overwrite"]) == 2
+    assert "is not a bag" in capsys.readouterr().err and (folder / "keep.txt").read_text() == "mine"
+    assert moseg(["process", str(textured_bag), "-o", str(textured_bag), "--no-progress", "--overwrite"]) == 2
+    assert "the input bag itself" in capsys.readouterr().err
+    assert len(list(iter_messages(textured_bag, ["/camera/image_raw"]))) == 20
+
+
 def test_damaged_input_is_processed_up_to_the_damage(textured_bag, tmp_path, capsys):
     file = next(textured_bag.glob("*.mcap"))
     file.write_bytes(file.read_bytes()[:file.stat().st_size * 2 // 3])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -30,8 +31,12 @@ OUTPUT_PREFIX = "/segmenter"
 
 
 def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None = None,
-                config: PipelineConfig = PipelineConfig(), progress: bool = False) -> dict[str, Any]:
+                config: PipelineConfig = PipelineConfig(), progress: bool = False,
+                overwrite: bool = False) -> dict[str, Any]:
     """Segment every image of ``bag`` and write the three mask topics to ``output`` (rosbag2 MCAP).
+
+    An existing ``output`` is refused (FileExistsError), or with ``overwrite`` replaced when it is a bag other
+    than the input; nothing is removed before the input has proved usable.
 
     Returns:
         Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing, and
@@ -42,6 +47,8 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
     seconds: list[float] = []
     start = time.perf_counter()
     topic = pick_image_topic(list_topics(bag), image_topic)  # an unusable input fails before the output exists
+    if overwrite:
+        _remove_output_bag(Path(output), Path(bag))
     with Pipeline(config) as pipeline, BagWriter(output) as writer:
         try:
             for image in read_images(bag, topic):
@@ -57,6 +64,21 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
     counts["seconds_total"] = time.perf_counter() - start
     counts["ms_per_frame_mean"] = 1e3 * sum(seconds) / max(len(seconds), 1)
     return counts
+
+
+def _remove_output_bag(output: Path, bag: Path) -> None:
+    """Remove the earlier output bag at ``output`` (a folder or a file), refusing the input itself and
+    anything that is not a bag."""
+    if not output.exists():
+        return
+    if output.resolve() == bag.resolve():
+        raise FileExistsError(f"the output is the input bag itself (not overwriting): {output}")
+    if not is_bag(output):
+        raise FileExistsError(f"the output exists and is not a bag (not overwriting): {output}")
+    if output.is_dir():
+        shutil.rmtree(output)
+    else:
+        output.unlink()
 
 
 def _process_image(pipeline: Pipeline, image: Any, writer: BagWriter, counts: dict[str, Any],
@@ -93,7 +115,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "('auto', 'ray://host:10001') that cluster")
     parser.add_argument("--workers", type=int, metavar="N", help="at most N bags at a time with --ray")
     parser.add_argument("--overwrite", action="store_true",
-                        help="redo bags whose output is complete (skipped otherwise)")
+                        help="replace an existing output bag; with several bags, redo those whose output is "
+                             "complete (skipped otherwise)")
     add_settings_arguments(parser)
 
 
@@ -125,8 +148,12 @@ def run(args: argparse.Namespace) -> int:
         return run_fleet(args)
     try:
         counts = process_bag(args.bags[0], args.output, image_topic=args.topic, config=pipeline_config(args),
-                             progress=not args.no_progress)
-    except (FileNotFoundError, FileExistsError, ValueError) as error:
+                             progress=not args.no_progress, overwrite=args.overwrite)
+    except FileExistsError as error:
+        hint = "" if args.overwrite else "; --overwrite replaces an earlier output bag"
+        print(f"moseg process: error: {error}{hint}", file=sys.stderr)
+        return 2
+    except (FileNotFoundError, ValueError) as error:
         print(f"moseg process: error: {error}", file=sys.stderr)
         return 2
     print(json.dumps(counts, indent=2))
