@@ -3,6 +3,8 @@
 import json
 import time
 
+import numpy as np
+
 from moseg_ros.cli import main
 
 
@@ -17,7 +19,30 @@ def test_pipeline_bench_prints_timing_for_both_methods(capsys):
 
 def test_object_level_bench_needs_the_synthetic_instances(tmp_path, capsys):
     assert main(["bench", "pipeline", str(tmp_path), "--method", "object_level"]) == 2
-    assert "needs instance maps" in capsys.readouterr().out
+    assert "needs instance maps" in capsys.readouterr().err
+
+
+def test_benches_refuse_bad_input_with_a_clear_error(tmp_path, capsys):
+    """No traceback: a missing bag, a folder that is no bag, a bag with two image topics and no --topic, too
+    few frames to render."""
+    from moseg_ros.io.bags import BagWriter
+
+    two = tmp_path / "two"
+    with BagWriter(two) as writer:
+        for stamp in range(1, 5):
+            for topic in ("/left/image_raw", "/right/image_raw"):
+                writer.write_image(topic, stamp, "cam", np.full((32, 48), 9 * stamp, np.uint8), "mono8")
+    cases = [(["bench", "pipeline", str(tmp_path / "nope")], "not found"),
+             (["bench", "pipeline", str(tmp_path)], "rosbag2 folder"),
+             (["bench", "pipeline", str(two)], "several image topics"),
+             (["bench", "fleet", str(tmp_path / "nope")], "not a bag"),
+             (["bench", "synth", "--frames", "0"], "n_frames must be >= 1")]
+    for argv, reason in cases:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert f"moseg {argv[0]} {argv[1]}: error:" in err and reason in err and "Traceback" not in err, (argv, err)
+    assert main(["bench", "pipeline", str(two), "--topic", "/right/image_raw", "--frames", "4"]) == 0
+    assert json.loads(capsys.readouterr().out)["frames"] == 3
 
 
 def test_pipeline_bench_reports_stages_floor_and_the_refit_worker(textured_bag, tmp_path, capsys):

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -20,7 +21,7 @@ from typing import Any
 
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import PipelineConfig
-from moseg_ros.tools.fleet import LOCAL, process_fleet, start_ray, warm_up_ray
+from moseg_ros.tools.fleet import LOCAL, is_bag, process_fleet, start_ray, warm_up_ray
 
 
 def _copies(bag: Path, folder: Path, n: int) -> Path:
@@ -109,7 +110,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Print the timings as JSON."""
     if args.copies < 1:
-        print(f"moseg bench fleet: error: --copies must be >= 1, got {args.copies}")
+        print(f"moseg bench fleet: error: --copies must be >= 1, got {args.copies}", file=sys.stderr)
+        return 2
+    if args.bag is not None and not is_bag(args.bag):
+        print(f"moseg bench fleet: error: not a bag (rosbag2 folder, .mcap or .bag): {args.bag}", file=sys.stderr)
         return 2
     config = pipeline_config(args)
     with tempfile.TemporaryDirectory(prefix="moseg-fleet-bag-") as tmp:

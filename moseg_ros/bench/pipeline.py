@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -113,9 +114,9 @@ def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
     return numbers
 
 
-def _bag_frames(bag: Path, n: int) -> tuple[list[np.ndarray], list[float]]:
+def _bag_frames(bag: Path, n: int, topic: str | None = None) -> tuple[list[np.ndarray], list[float]]:
     frames, decode_ms = [], []
-    for image, _ in zip(read_images(bag), range(n)):
+    for image, _ in zip(read_images(bag, topic), range(n)):
         start = time.perf_counter()
         frames.append(decode_frame(image.msg))
         decode_ms.append((time.perf_counter() - start) * 1e3)
@@ -128,6 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--rate", type=float, default=0.0, metavar="HZ",
                         help="feed the frames at a camera's rate (default 0: back to back)")
+    parser.add_argument("--topic", help="image topic of the bag (default: its one camera image topic)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the result here")
     add_settings_arguments(parser)  # --method object_level runs on the synthetic street's ground-truth instances
 
@@ -144,13 +146,14 @@ def run(args: argparse.Namespace) -> int:
         if config.method == "object_level":
             instances = [f.instances for f in sequence]
     elif config.method == "object_level":
-        print("moseg bench pipeline: --method object_level needs instance maps: run it without a bag")
-        return 2
+        return _error("--method object_level needs instance maps: run it without a bag")
     else:
-        frames, decode_ms = _bag_frames(args.bag, args.frames)
+        try:
+            frames, decode_ms = _bag_frames(args.bag, args.frames, args.topic)
+        except (FileNotFoundError, ValueError) as error:  # no bag, not a bag, damaged, no or several image topics
+            return _error(str(error))
     if len(frames) < 3 or args.rate < 0:
-        print(f"moseg bench pipeline: need at least 3 frames and a rate >= 0, got {len(frames)} and {args.rate}")
-        return 2
+        return _error(f"need at least 3 frames and a rate >= 0, got {len(frames)} and {args.rate}")
     with threadpool_limits(1):
         result = bench_pipeline(frames, config, instances, decode_ms, args.rate)
     text = json.dumps({"method": config.method, "flow_preset": config.dis_preset(), **result}, indent=2)
@@ -158,3 +161,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         args.json.write_text(text + "\n")
     return 0
+
+
+def _error(message: str) -> int:
+    print(f"moseg bench pipeline: error: {message}", file=sys.stderr)
+    return 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from moseg_ros.synth.scenarios import bench_render
 from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
@@ -18,7 +19,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Print the rendering rate as JSON."""
-    rate = bench_render(args.frames, args.width, args.height)
+    try:
+        rate = bench_render(args.frames, args.width, args.height)
+    except ValueError as error:  # fewer than one frame, an image under 16x16
+        print(f"moseg bench synth: error: {error}", file=sys.stderr)
+        return 2
     print(json.dumps({"frames": args.frames, "width": args.width, "height": args.height,
                       "frames_per_second": rate}, indent=2))
     return 0
