@@ -39,3 +39,11 @@ def test_object_level_demo_gets_the_instances_and_catches_movers(tmp_path, ros_d
     assert summary["method"] == "object_level" and summary["masks_out"] == 12
     assert summary["node_diagnostics"]["frames_without_instances"] == "0"
     assert summary["iou_mean"] > 0.3 and summary["false_positive_rate_mean"] < 0.02
+
+
+def test_bad_scene_arguments_are_refused_before_any_node_starts(tmp_path, capsys):
+    for argv, reason in ((["--frames", "0"], "at least 2 frames"), (["--scenario", "rainy"], "presets: default")):
+        assert moseg(["demo", "--out", str(tmp_path / "out"), "--bag", str(tmp_path / "bag"), *argv]) == 2
+        err = capsys.readouterr().err
+        assert "moseg demo: error:" in err and reason in err
+    assert not (tmp_path / "bag").exists() and not (tmp_path / "out").exists()

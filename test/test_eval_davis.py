@@ -70,6 +70,13 @@ def test_max_frames_and_a_folder_without_clips(tmp_path, capsys):
     assert clip["frames"] == 3 and clip["scored_frames"] == 2
     assert moseg(["eval", "davis", str(tmp_path / "empty")]) == 2
     assert "no DAVIS clips" in capsys.readouterr().out
+    frames_only = tmp_path / "frames_only"
+    _write_clip(frames_only, "unlabelled", [f"{i:05d}.jpg" for i in range(3)], [], seed=1)
+    out.unlink()
+    assert moseg(["eval", "davis", str(frames_only), "--json", str(out)]) == 2
+    printed = capsys.readouterr().out
+    assert "has both frames and annotations" in printed and "skipped: unlabelled" in printed and "nan" not in printed
+    assert not out.exists()
 
 
 def test_annotations_pair_by_stem_or_by_order():

@@ -11,7 +11,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from moseg_ros.synth import cli
-from moseg_ros.synth.scenarios import PRESETS, build_scene, render_sequence
+from moseg_ros.synth.scenarios import PRESETS, build_scene, check_scene, render_sequence
 from moseg_ros.synth.street import GT_TOPICS, SynthFrame, SynthScene, render_frames, write_bag
 
 SMALL = {"width": 414, "height": 125}
@@ -212,6 +212,14 @@ def test_full_size_frames_have_hundreds_of_trackable_corners(full_size_scene: Sy
     corners = cv2.goodFeaturesToTrack(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY), maxCorners=3000,
                                       qualityLevel=0.01, minDistance=7)
     assert corners is not None and len(corners) > 500
+
+
+def test_check_scene_names_what_is_wrong_without_building() -> None:
+    check_scene("map", 2, 16, 16)  # the smallest valid arguments pass
+    for args, reason in ((("rainy", 40, 621, 188), "presets: default"), (("default", 1, 621, 188), "at least 2"),
+                         (("default", 40, 621, 15), "16x16, got 621x15")):
+        with pytest.raises(ValueError, match=reason):
+            check_scene(*args)
 
 
 def test_unknown_scenario_names_the_presets() -> None:

@@ -65,3 +65,7 @@ def test_object_frames_are_summed_per_kind_of_object():
 def test_unknown_preset_is_refused(capsys):
     assert main(["synth-eval", "--presets", "highway"]) == 2
     assert "presets must be among" in capsys.readouterr().out
+    for argv, reason in ((["--frames", "1"], "at least 2 frames"), (["--width", "10"], "at least 16x16")):
+        assert main(["synth-eval", *argv]) == 2
+        err = capsys.readouterr().err
+        assert "moseg synth-eval: error:" in err and reason in err

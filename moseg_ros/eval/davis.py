@@ -173,13 +173,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the per-clip table and the mean line; 0 on success, 2 without clips."""
+    """Print the per-clip table and the mean line; 0 on success, 2 without clips or without a scored one."""
     if not clip_names(args.dir):
         print(f"no DAVIS clips (JPEGImages/{RESOLUTION}/<clip>/) under {args.dir}")
         return 2
     config = pipeline_config(args)
     with threadpool_limits(1):
         scores, skipped = evaluate(args.dir, config, args.max_frames)
+    if not scores:
+        print(f"no DAVIS clip under {args.dir} has both frames and annotations "
+              f"(Annotations/{RESOLUTION}/<clip>/*.png); skipped: {', '.join(skipped)}")
+        return 2
     print(f"{'clip':20s} {'frames':>6s} {'scored':>6s} {'J %':>6s} {'precision %':>11s} {'recall %':>8s} "
           f"{'ms/frame':>8s}")
     for s in scores:

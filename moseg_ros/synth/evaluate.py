@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 from collections import Counter
 from pathlib import Path
 
@@ -21,11 +22,16 @@ import numpy as np
 
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
-from moseg_ros.synth.scenarios import PRESETS, render_sequence
+from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
 from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
 
 # Every preset but map, which is the default's movers at half the camera speed (made for SfM, not a new case).
 EVAL_PRESETS = tuple(name for name in PRESETS if name != "map")
+
+
+def kitti_height(width: int) -> int:
+    """The image height that keeps KITTI's aspect ratio at ``width``."""
+    return int(round(width * KITTI_HEIGHT / KITTI_WIDTH))
 
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
@@ -36,7 +42,7 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
     id among the dynamic ids); otherwise flagged = at least ``cover`` of the object's pixels in the mask.
     """
-    height = int(round(width * KITTI_HEIGHT / KITTI_WIDTH))
+    height = kitti_height(width)
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
@@ -106,6 +112,12 @@ def run(args: argparse.Namespace) -> int:
     unknown = [p for p in presets if p not in PRESETS]
     if unknown or not presets or args.seeds < 1:
         print(f"moseg synth-eval: presets must be among {', '.join(PRESETS)} and --seeds >= 1")
+        return 2
+    try:
+        for preset in presets:
+            check_scene(preset, args.frames, args.width, kitti_height(args.width))
+    except ValueError as error:
+        print(f"moseg synth-eval: error: {error}", file=sys.stderr)
         return 2
     config = pipeline_config(args)
     rows, scenes = [], []

@@ -128,8 +128,6 @@ def _builder(name: str, seed: int, n_frames: int, width: int, height: int,
     With ``side_street_ahead``, both facades open (over at least 14 m) for a side street that many metres
     past the camera's last position. The camera drives about ``camera_speed`` metres per frame.
     """
-    if n_frames < 2:
-        raise ValueError(f"a scenario needs at least 2 frames, got {n_frames}")
     rng, paint_rng = np.random.default_rng([seed, 0]), np.random.default_rng([seed, 1])
     speed = camera_speed * (1.0 + float(rng.uniform(-0.05, 0.05)))
     cam_height = 1.5 + float(rng.uniform(-0.08, 0.08))
@@ -318,13 +316,21 @@ PRESETS: dict[str, Callable[[int, int, int, int], SynthScene]] = {
 }
 
 
-def build_scene(scenario: str = "default", *, seed: int = 0, n_frames: int = 40, width: int = KITTI_WIDTH,
-                height: int = KITTI_HEIGHT) -> SynthScene:
-    """The scene of a preset; ValueError naming the presets for an unknown one."""
+def check_scene(scenario: str, n_frames: int, width: int, height: int) -> None:
+    """ValueError saying what is wrong with a preset's arguments (an unknown preset, fewer than 2 frames, an image
+    under 16x16); tools call it before any slow work."""
     if scenario not in PRESETS:
         raise ValueError(f"unknown scenario {scenario!r}; presets: {', '.join(PRESETS)}")
+    if n_frames < 2:
+        raise ValueError(f"a scenario needs at least 2 frames, got {n_frames}")
     if width < 16 or height < 16:
         raise ValueError(f"image size must be at least 16x16, got {width}x{height}")
+
+
+def build_scene(scenario: str = "default", *, seed: int = 0, n_frames: int = 40, width: int = KITTI_WIDTH,
+                height: int = KITTI_HEIGHT) -> SynthScene:
+    """The scene of a preset; ValueError as ``check_scene`` for bad arguments."""
+    check_scene(scenario, int(n_frames), int(width), int(height))
     return PRESETS[scenario](int(seed), int(n_frames), int(width), int(height))
 
 

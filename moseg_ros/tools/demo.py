@@ -26,8 +26,8 @@ from moseg_ros.io.bags import read_images
 from moseg_ros.methods import DEFAULT_METHOD
 from moseg_ros.params import all_settings
 from moseg_ros.pipeline import METHODS
-from moseg_ros.synth.scenarios import build_scene
-from moseg_ros.synth.street import GT_TOPICS, render_frames, write_frames
+from moseg_ros.synth.scenarios import build_scene, check_scene
+from moseg_ros.synth.street import GT_TOPICS, KITTI_HEIGHT, KITTI_WIDTH, render_frames, write_frames
 from moseg_ros.tools.dds import loopback_env
 from moseg_ros.tools.replay import replay
 
@@ -179,7 +179,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the demo; exit 1 unless every frame got its mask and the node exited cleanly."""
+    """Run the demo; exit 1 unless every frame got its mask and the node exited cleanly, 2 on bad arguments."""
+    try:
+        check_scene(args.scenario, args.frames, KITTI_WIDTH, KITTI_HEIGHT)
+    except ValueError as error:
+        print(f"moseg demo: error: {error}", file=sys.stderr)
+        return 2
     summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
                        domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method)
     print_table(summary)
