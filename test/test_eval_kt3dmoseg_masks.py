@@ -56,6 +56,11 @@ def test_clip_files_of_any_name(tmp_path, capsys):
     assert [c["clip"] for c in result["clips"]] == ["street"] and result["clips_without_frames"] == []
     assert moseg(["eval", "kt3dmoseg-masks", str(tmp_path / "empty")]) == 2
     assert "no KT3DMoSeg clip files (*.mat with a Data struct)" in capsys.readouterr().out
+    frameless = _subset(tmp_path / "frameless", [], ["Seq020_Clip01"])
+    assert moseg(["eval", "kt3dmoseg-masks", str(frameless), "--json", str(tmp_path / "f.json")]) == 2
+    printed = capsys.readouterr().out
+    assert "has its frames" in printed and "skipped: Seq020_Clip01" in printed and "nan" not in printed
+    assert not (tmp_path / "f.json").exists()
 
 
 def test_object_frames_need_half_of_their_visible_points():

@@ -152,7 +152,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print the per-clip table and the means."""
+    """Print the per-clip table and the means; 2 without clips or without a clip that has its frames."""
     root = args.dir or default_dir()
     if not find_clips(root):
         print(no_clips_message(root))
@@ -160,14 +160,18 @@ def run(args: argparse.Namespace) -> int:
     config = pipeline_config(args)
     with threadpool_limits(1):
         scores, without = evaluate(root, config)
+    if not scores:
+        print(f"no KT3DMoSeg clip under {root} has its frames (OriginalSequences/<clip>/*.png); "
+              f"skipped: {', '.join(without)}")
+        return 2
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
           f"{'static flagged %':>16s} {'obj-frames det.':>16s} {'ms/frame':>9s}")
     for s in scores:
         print(f"{s.clip:16s} {s.frames:6d} {s.moving_points:10d} {s.static_points:10d} {100 * s.moving_recall:9.1f} "
               f"{100 * s.static_flagged:16.2f} {f'{s.object_frames_detected} / {s.object_frames}':>16s} "
               f"{s.ms_per_frame:9.1f}")
-    means = {"moving_recall_mean": float(np.nanmean([s.moving_recall for s in scores])) if scores else float("nan"),
-             "static_flagged_mean": float(np.nanmean([s.static_flagged for s in scores])) if scores else float("nan"),
+    means = {"moving_recall_mean": float(np.nanmean([s.moving_recall for s in scores])),
+             "static_flagged_mean": float(np.nanmean([s.static_flagged for s in scores])),
              "clips_scored": len(scores), "clips_without_frames": without}
     print(f"mean over {len(scores)} clips: moving-point recall {100 * means['moving_recall_mean']:.1f} %, "
           f"static points flagged {100 * means['static_flagged_mean']:.2f} %")
