@@ -2,7 +2,8 @@
 
 Every tool module exposes ``add_arguments(parser)`` and ``run(args) -> int``. Only the module of the
 command being run is imported, so one tool's heavy or optional imports never slow down or break another.
-Grouped commands (``moseg eval kt3dmoseg``) nest one level.
+Grouped commands (``moseg eval kt3dmoseg``) nest one level. A tool's ``--json PATH`` is written when its run
+ends, which may be many minutes later: a PATH whose folder does not exist is refused before the run starts.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from pathlib import Path
 from typing import Sequence
 
 from moseg_ros.params import SettingsError
@@ -73,6 +75,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `moseg` console script."""
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser(argv).parse_args(argv)
+    report = getattr(args, "json", None)
+    if report is not None and not Path(report).parent.is_dir():
+        command = " ".join(word for word in (args.command, getattr(args, "tool", None)) if word)
+        print(f"moseg {command}: error: --json {report}: its folder does not exist", file=sys.stderr)
+        return 2
     try:
         return int(args._run(args) or 0)
     except SettingsError as error:
