@@ -422,6 +422,7 @@ def test_replay_without_a_node_times_out_with_a_clear_error(textured_bag, ros_do
         capture_output=True, text=True, timeout=60, env=loopback_env(ros_domain))
     assert result.returncode == 2, result.stderr
     assert "moseg replay: error: timed out after 2 s waiting for a segmenter" in result.stderr
+    assert not (tmp_path / "out").exists()  # nothing was sent: no empty bag left to block a rerun
 
 
 def test_a_mask_topic_is_built_only_while_someone_subscribes(ros_domain, monkeypatch):

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import shutil
 import sys
 import threading
 import time
@@ -223,6 +224,9 @@ def replay(bag: str | Path, output: str | Path, *, image_topic: str | None = Non
             wait_until(lambda: recorder.has_all_outputs(list(sent)), drain_timeout, "the last masks") if sent else None
         except TimeoutError as error:
             if not sent:
+                # The bag holds nothing; left in place, it would block a rerun once the node is up.
+                writer.close()
+                shutil.rmtree(output, ignore_errors=True)
                 raise
             print(f"replay: {error}; reporting what came back")
         finally:
