@@ -61,6 +61,26 @@ def test_scores_synthetic_clips_of_any_names_and_lists_a_clip_without_annotation
     assert "block-b" in printed and "mean over 2 clips" in printed and "skipped" in printed and "no-gt" in printed
 
 
+def test_unreadable_frames_and_annotations_are_skipped_and_listed(tmp_path, capsys):
+    root = tmp_path / "davis"
+    names = [f"{i:05d}" for i in range(6)]
+    _write_clip(root, "damaged", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+    _write_clip(root, "unreadable", [f"{n}.jpg" for n in names[:3]], [f"{n}.png" for n in names[:3]], seed=1)
+    (root / "JPEGImages" / "480p" / "damaged" / "00003.jpg").write_bytes(b"not a jpeg")
+    (root / "Annotations" / "480p" / "damaged" / "00004.png").write_bytes(b"not a png")
+    for name in names[:3]:
+        (root / "JPEGImages" / "480p" / "unreadable" / f"{name}.jpg").write_bytes(b"")
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    clip, = result["clips"]
+    assert clip["clip"] == "damaged" and clip["unreadable"] == ["00003.jpg", "00004.png"]
+    assert clip["frames"] == 6 and clip["scored_frames"] == 3  # frames 1, 2 and 5
+    assert result["clips_skipped"] == ["unreadable"]
+    printed = capsys.readouterr().out
+    assert "damaged: unreadable, skipped: 00003.jpg, 00004.png" in printed
+
+
 def test_max_frames_and_a_folder_without_clips(tmp_path, capsys):
     root = tmp_path / "davis"
     _write_clip(root, "short", [f"{i:05d}.jpg" for i in range(5)], [f"{i:05d}.png" for i in range(5)], seed=0)

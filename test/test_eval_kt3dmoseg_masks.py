@@ -47,6 +47,22 @@ def test_scores_real_frames_at_labelled_points(tmp_path, capsys):
     assert "Seq005_Clip02" in printed and "object-frames detected" in printed
 
 
+def test_an_unreadable_frame_is_skipped_listed_and_not_scored(tmp_path, capsys):
+    """Seq005_Clip02 with its frames copied and the fourth one damaged: 19 frames run, its points unscored."""
+    root = _subset(tmp_path / "kt", [], ["Seq005_Clip02"])
+    frames = root / "OriginalSequences" / "Seq005_Clip02"
+    frames.mkdir()
+    source = sorted(shared_data("kt3dmoseg", "OriginalSequences", "Seq005_Clip02").glob("*.png"))
+    for path in source:
+        (frames / path.name).write_bytes(path.read_bytes())
+    (frames / source[3].name).write_bytes(b"not a png")
+    assert moseg(["eval", "kt3dmoseg-masks", str(root), "--json", str(tmp_path / "r.json")]) == 0
+    row, = json.loads((tmp_path / "r.json").read_text())["clips"]
+    assert row["unreadable"] == [source[3].name] and row["frames"] == 20
+    assert row["object_frames"] == 2 * 18  # two movers, frames 1..19 but the damaged one
+    assert f"Seq005_Clip02: unreadable, skipped: {source[3].name}" in capsys.readouterr().out
+
+
 def test_clip_files_of_any_name(tmp_path, capsys):
     """A clip file and its frames under another name are found; SeqList.mat (no Data struct) is passed over."""
     root = _subset(tmp_path / "kt", ["Seq070_Clip01"], rename={"Seq070_Clip01": "street"})
@@ -59,7 +75,7 @@ def test_clip_files_of_any_name(tmp_path, capsys):
     frameless = _subset(tmp_path / "frameless", [], ["Seq020_Clip01"])
     assert moseg(["eval", "kt3dmoseg-masks", str(frameless), "--json", str(tmp_path / "f.json")]) == 2
     printed = capsys.readouterr().out
-    assert "has its frames" in printed and "skipped: Seq020_Clip01" in printed and "nan" not in printed
+    assert "has readable frames" in printed and "skipped: Seq020_Clip01" in printed and "nan" not in printed
     assert not (tmp_path / "f.json").exists()
 
 

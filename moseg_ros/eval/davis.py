@@ -11,14 +11,16 @@ Reported per clip: J (the DAVIS region measure: mean over frames of the IoU, 1 w
 pixel precision and recall pooled over the clip's frames, and ms per frame (the first frame excluded). The
 mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
 ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
-positives. Clips without annotations (or without frames) are listed and skipped.
+positives. Clips without annotations (or without frames) are listed and skipped. A frame or annotation that
+cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees such a frame, and
+it is not scored), and listed under its clip (``unreadable``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -48,6 +50,7 @@ class ClipScore:
     false_positives: int
     false_negatives: int
     ms_per_frame: float
+    unreadable: list[str] = field(default_factory=list)
 
 
 def clip_names(root: Path) -> list[str]:
@@ -102,41 +105,58 @@ def pooled_ratio(numerator: int, denominator: int) -> float:
     return numerator / denominator if denominator else float("nan")
 
 
-def score_clip(name: str, images: list[Path], annotations: list[Path | None], config: PipelineConfig) -> ClipScore:
-    """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it."""
-    ious, seconds = [], []
+def score_clip(name: str, images: list[Path], annotations: list[Path | None],
+               config: PipelineConfig) -> ClipScore | None:
+    """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it;
+    None when no frame can be read."""
+    ious, seconds, unreadable = [], [], []
     tp = fp = fn = 0
     with Pipeline(config) as pipeline:
         for t, (image, annotation) in enumerate(zip(images, annotations)):
-            result = pipeline.process(read_rgb(image), round(t * FRAME_PERIOD_NS))
+            try:
+                frame = read_rgb(image)
+            except ValueError:
+                unreadable.append(image.name)
+                continue
+            result = pipeline.process(frame, round(t * FRAME_PERIOD_NS))
             seconds.append(result.seconds)
             if t == 0 or annotation is None:
                 continue
-            predicted, truth = result.masks.dynamic > 0, read_annotation(annotation)
+            try:
+                truth = read_annotation(annotation)
+            except ValueError:
+                unreadable.append(annotation.name)
+                continue
+            predicted = result.masks.dynamic > 0
             if truth.shape != predicted.shape:
                 raise ValueError(f"annotation {annotation} is {truth.shape}, its frame {image} {predicted.shape}")
             ious.append(mask_iou(predicted, truth))
             tp += np.count_nonzero(predicted & truth)
             fp += np.count_nonzero(predicted & ~truth)
             fn += np.count_nonzero(~predicted & truth)
+    if not seconds:
+        return None
     return ClipScore(
         clip=name, frames=len(images), scored_frames=len(ious),
         j=float(np.mean(ious)) if ious else float("nan"),
         precision=pooled_ratio(tp, tp + fp), recall=pooled_ratio(tp, tp + fn),
         true_positives=int(tp), false_positives=int(fp), false_negatives=int(fn),
-        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"))
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"), unreadable=unreadable)
 
 
 def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None) -> tuple[list[ClipScore], list[str]]:
-    """Score every clip of ``root`` that has frames and annotations; returns the scores and the skipped clips."""
+    """Score every clip of ``root`` that has readable frames and annotations; returns the scores and the skipped
+    clips."""
     scores, skipped = [], []
     for name in clip_names(root):
         images = files_with_suffix(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
         annotations = files_with_suffix(root / "Annotations" / RESOLUTION / name, (".png",))
-        if not images or not annotations:
+        score = (score_clip(name, images, pair_annotations(images, annotations), config)
+                 if images and annotations else None)
+        if score is None:
             skipped.append(name)
-            continue
-        scores.append(score_clip(name, images, pair_annotations(images, annotations), config))
+        else:
+            scores.append(score)
     return scores, skipped
 
 
@@ -194,7 +214,10 @@ def run(args: argparse.Namespace) -> int:
           f"{100 * means['precision']:.1f} %, recall {100 * means['recall']:.1f} %, "
           f"{means['ms_per_frame']:.1f} ms per frame ({config.method})")
     if skipped:
-        print(f"skipped (no annotations or no frames): {', '.join(skipped)}")
+        print(f"skipped (no annotations or no readable frames): {', '.join(skipped)}")
+    for s in scores:
+        if s.unreadable:
+            print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
     if args.json:
         report = {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
                   "config": asdict(config)}

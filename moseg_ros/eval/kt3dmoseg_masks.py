@@ -9,13 +9,15 @@ is one moving object (label >= 2) in one frame where at least one of its labelle
 detected when at least half of those points are in the mask. Over all clips: the per-clip means, and recall,
 static points flagged and object-frames detected pooled over every scored point-frame or object-frame. The
 first frame of each clip (no motion evidence yet) is not scored. Clips without frames are listed and skipped.
+A frame that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees it, and
+its points are not scored), and listed under its clip (``unreadable``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -44,6 +46,7 @@ class ClipMaskScore:
     static_hits: int
     object_frames: int
     object_frames_detected: int
+    unreadable: list[str] = field(default_factory=list)
 
 
 def frames_folder(root: Path, clip: str) -> Path | None:
@@ -87,20 +90,28 @@ def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.nda
     return int(present.sum()), int((present & (2 * inside >= points)).sum())
 
 
-def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore:
-    """Run the pipeline over the clip's frames and score its masks at the labelled points."""
+def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore | None:
+    """Run the pipeline over the clip's frames and score its masks at the labelled points; None when no frame
+    can be read."""
     n = min(len(frame_paths), clip.visible.shape[1])
-    masks, seconds = [], []
+    masks: list[np.ndarray | None] = []
+    seconds = []
     with Pipeline(config) as pipeline:
         for t in range(n):
             frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
             if frame is None:
-                raise ValueError(f"cannot read frame {frame_paths[t]}")
+                masks.append(None)
+                continue
             result = pipeline.process(frame, t * FRAME_PERIOD_NS)
             masks.append(result.masks.dynamic)
             seconds.append(result.seconds)
-    hits = points_in_masks(masks, Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels))
-    scored = clip.visible[:, :n].copy()
+    unread = np.array([mask is None for mask in masks])
+    if unread.all():
+        return None
+    blank = np.zeros_like(next(mask for mask in masks if mask is not None))
+    hits = points_in_masks([blank if mask is None else mask for mask in masks],
+                           Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels))
+    scored = clip.visible[:, :n] & ~unread
     scored[:, 0] = False
     moving = (clip.labels >= 2)[:, None] & scored
     static = (clip.labels == 1)[:, None] & scored
@@ -109,22 +120,25 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> C
         clip=clip.name, frames=n, moving_points=int(moving.sum()), static_points=int(static.sum()),
         moving_recall=float(hits[moving].mean()) if moving.any() else float("nan"),
         static_flagged=float(hits[static].mean()) if static.any() else float("nan"),
-        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if n > 1 else float("nan"),
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"),
         moving_hits=int(hits[moving].sum()), static_hits=int(hits[static].sum()),
-        object_frames=object_frames, object_frames_detected=detected)
+        object_frames=object_frames, object_frames_detected=detected,
+        unreadable=[frame_paths[t].name for t in np.flatnonzero(unread)])
 
 
 def evaluate(root: Path, config: PipelineConfig = PipelineConfig()) -> tuple[list[ClipMaskScore], list[str]]:
-    """Score every clip of ``root`` that has frames; returns the scores and the names of clips without frames."""
+    """Score every clip of ``root`` that has frames; returns the scores and the names of clips without a readable
+    frame."""
     scores, without = [], []
     for path in find_clips(root):
         clip = load_clip(path)
         folder = frames_folder(root, clip.name)
         frame_paths = sorted(folder.glob("*.png")) if folder else []
-        if not frame_paths:
+        score = score_clip(clip, frame_paths, config) if frame_paths else None
+        if score is None:
             without.append(clip.name)
-            continue
-        scores.append(score_clip(clip, frame_paths, config))
+        else:
+            scores.append(score)
     return scores, without
 
 
@@ -161,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     with threadpool_limits(1):
         scores, without = evaluate(root, config)
     if not scores:
-        print(f"no KT3DMoSeg clip under {root} has its frames (OriginalSequences/<clip>/*.png); "
+        print(f"no KT3DMoSeg clip under {root} has readable frames (OriginalSequences/<clip>/*.png); "
               f"skipped: {', '.join(without)}")
         return 2
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
@@ -181,7 +195,10 @@ def run(args: argparse.Namespace) -> int:
     print("object-frames detected (at least half of their visible points in the mask): "
           f"{100 * totals['object_frames_detected']:.1f} % of {totals['object_frames']}")
     if without:
-        print(f"skipped (no frames): {', '.join(without)}")
+        print(f"skipped (no readable frames): {', '.join(without)}")
+    for s in scores:
+        if s.unreadable:
+            print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
     if args.json:
         args.json.write_text(json.dumps({**means, **totals, "clips": [asdict(s) for s in scores]}, indent=2) + "\n")
     return 0
