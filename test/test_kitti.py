@@ -301,3 +301,20 @@ def test_cli_run(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "already exists" in capsys.readouterr().err
     assert kitti.run(parser.parse_args([str(drive), "-o", str(tmp_path / "b2"), "--camera", "03"])) == 2
     assert "camera '03'" in capsys.readouterr().err
+
+
+def test_a_bag_cut_short_by_a_bad_frame_is_removed(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Closed, a partial bag would look complete and block the rerun once the frame is mended."""
+    drive, _ = make_raw_drive(tmp_path)
+    damaged = drive / "image_02" / "data" / f"{1:010d}.png"
+    damaged.write_bytes(b"not a png")
+    parser = argparse.ArgumentParser()
+    kitti.add_arguments(parser)
+    assert kitti.run(parser.parse_args([str(drive), "-o", str(tmp_path / "bag")])) == 2
+    assert str(damaged) in capsys.readouterr().err
+    assert not (tmp_path / "bag").exists()
+    make_raw_drive(tmp_path / "mended")
+    assert kitti.run(parser.parse_args([str(tmp_path / "mended" / drive.relative_to(tmp_path)), "-o",
+                                        str(tmp_path / "bag")])) == 0
+    assert len(image_stamps(tmp_path / "bag")) == 3
+

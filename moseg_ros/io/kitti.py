@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import datetime as dt
+import shutil
 import sys
 from pathlib import Path
 
@@ -281,20 +282,33 @@ def kitti_to_bag(src: str | Path, dst: str | Path, *, topic: str = "/camera/imag
                              f"{sequence.images[-1].name} needs line {sequence.indices[-1] + 1}")
         frame_poses = list(table[list(sequence.indices)])
     size = sequence.size
-    with BagWriter(dst, storage=storage) as writer:
-        for path, stamp, pose in zip(sequence.images, sequence.stamps_ns, frame_poses):
-            pixels, encoding = _read_frame(path)
-            frame_size = (pixels.shape[1], pixels.shape[0])
-            if size is None:
-                size = frame_size
-            elif frame_size != size:
-                raise ValueError(f"{path} is {frame_size[0]}x{frame_size[1]}, expected {size[0]}x{size[1]}")
-            writer.write_image(topic, stamp, frame_id, pixels, encoding)
-            writer.write_camera_info(info_topic, stamp, frame_id, sequence.K, size[0], size[1],
-                                     D=sequence.D, P=sequence.P)
-            if pose is not None:
-                writer.write_pose(POSE_TOPIC, stamp, WORLD_FRAME, pose)
-        return dict(writer.counts)
+    writer = BagWriter(dst, storage=storage)
+    try:
+        with writer:
+            _write_sequence(writer, sequence, frame_poses, size, topic, info_topic, frame_id)
+    except BaseException:
+        # Closed, a bag cut short by a bad frame (or by Ctrl-C) looks complete, and blocks the rerun: remove it.
+        shutil.rmtree(dst, ignore_errors=True)
+        raise
+    return dict(writer.counts)
+
+
+def _write_sequence(writer: BagWriter, sequence: KittiSequence, frame_poses: list[np.ndarray | None],
+                    size: tuple[int, int] | None, topic: str, info_topic: str, frame_id: str) -> None:
+    """Each frame's image, camera_info and (when known) pose; ValueError for a frame that cannot be read or whose
+    size differs from the first's (or the calibration's)."""
+    for path, stamp, pose in zip(sequence.images, sequence.stamps_ns, frame_poses):
+        pixels, encoding = _read_frame(path)
+        frame_size = (pixels.shape[1], pixels.shape[0])
+        if size is None:
+            size = frame_size
+        elif frame_size != size:
+            raise ValueError(f"{path} is {frame_size[0]}x{frame_size[1]}, expected {size[0]}x{size[1]}")
+        writer.write_image(topic, stamp, frame_id, pixels, encoding)
+        writer.write_camera_info(info_topic, stamp, frame_id, sequence.K, size[0], size[1],
+                                 D=sequence.D, P=sequence.P)
+        if pose is not None:
+            writer.write_pose(POSE_TOPIC, stamp, WORLD_FRAME, pose)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
