@@ -233,3 +233,29 @@ def test_bag_without_frames_is_a_clear_error(tmp_path: Path, capsys) -> None:
             writer.write_image("/camera/image_raw", 1 + i, "cam", np.zeros((40, 60, 3), np.uint8), "rgb8")
     assert moseg(["eval", "map", str(tmp_path / "two")]) == 2
     assert "a map needs at least 3" in capsys.readouterr().err
+
+
+def test_masks_of_another_bag_are_refused_before_colmap(street: Path, tmp_path: Path, capsys, monkeypatch) -> None:
+    """Masks at none of the bag's stamps would make "ours" a second unmasked run, found out minutes later."""
+    import moseg_ros.eval.map as eval_map
+    from moseg_ros.eval.map import OUR_MASKS
+    from moseg_ros.io.bags import BagWriter
+
+    monkeypatch.setattr(eval_map, "run_colmap", lambda *a, **k: pytest.fail("COLMAP ran"))
+    with BagWriter(tmp_path / "other") as writer:
+        for stamp in (1, 2, 3):
+            writer.write_image(OUR_MASKS, stamp, "cam", np.zeros((188, 621), np.uint8), "mono8")
+    assert moseg(["eval", "map", str(street), "--masks", str(tmp_path / "other")]) == 2
+    assert "has no /segmenter/dynamic_mask at any stamp" in capsys.readouterr().err
+
+
+def test_masks_for_some_frames_only_are_run_with_a_warning(tmp_path: Path, capsys) -> None:
+    from moseg_ros.eval.map import Frames, _check_masks_match
+
+    frames = Frames(tmp_path, ["a", "b", "c"], [10, 20, 30], None, (4, 6))
+    _check_masks_match({20: np.zeros((4, 6), bool)}, frames, tmp_path / "masks", tmp_path / "bag")
+    assert "has masks for 1 of 3 frames; the others keep every feature" in capsys.readouterr().err
+    _check_masks_match({}, frames, None, tmp_path / "bag")  # our own masks, made from the bag: never checked
+    _check_masks_match({t: np.zeros((4, 6), bool) for t in (10, 20, 30)}, frames, tmp_path / "masks", tmp_path)
+    assert capsys.readouterr().err == ""
+

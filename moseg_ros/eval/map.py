@@ -336,6 +336,18 @@ def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> di
     return masks_by_stamp(masks_bag, OUR_MASKS)
 
 
+def _check_masks_match(masks: dict[int, np.ndarray], frames: Frames, masks_bag: Path | None, bag: Path) -> None:
+    """ValueError when a given masks bag has a mask at none of the frames' stamps (``ours`` would silently be a
+    second unmasked run, after minutes of COLMAP); a warning when it covers only some of them."""
+    matched = sum(stamp in masks for stamp in frames.stamps)
+    if masks_bag is None or matched == len(frames.stamps):
+        return
+    if matched == 0:
+        raise ValueError(f"{masks_bag} has no {OUR_MASKS} at any stamp of {bag}'s frames (masks of another bag?)")
+    print(f"moseg eval map: warning: {masks_bag} has masks for {matched} of {len(frames.stamps)} frames; the others "
+          "keep every feature", file=sys.stderr)
+
+
 def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "global", every: int = 1,
                  config: Any = None, work: Path | None = None, progress: bool = True,
                  pose_file: Path | None = None, seed: int = 0) -> dict[str, Any]:
@@ -359,6 +371,7 @@ def evaluate_map(bag: Path, *, masks_bag: Path | None = None, mapper: str = "glo
         movers = moving_instances(bag, truth) if GT_TOPICS["instances"] in topics else {}
         reference = _poses(bag, pose_file)
         sources = {"none": None, "ours": _our_masks(bag, masks_bag, config or PipelineConfig(), work)}
+        _check_masks_match(sources["ours"], frames, masks_bag, bag)
         if truth:
             sources["gt"] = truth
         results, unmasked = {}, {}
