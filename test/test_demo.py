@@ -41,6 +41,23 @@ def test_object_level_demo_gets_the_instances_and_catches_movers(tmp_path, ros_d
     assert summary["iou_mean"] > 0.3 and summary["false_positive_rate_mean"] < 0.02
 
 
+def test_a_camera_bag_without_ground_truth_gets_masks_and_pictures_unscored(textured_bag, tmp_path, ros_domain,
+                                                                             capsys):
+    out = tmp_path / "out"
+    code = moseg(["demo", "--out", str(out), "--bag", str(textured_bag), "--domain", str(ros_domain),
+                  "--rate", "0.5"])
+    summary = json.loads((out / "summary.json").read_text())
+    assert code == 0, summary
+    assert summary["frames_in"] == summary["masks_out"] == 20 and summary["node_exit_code"] == 0
+    assert "iou_mean" not in summary and "frames_scored" not in summary
+    assert "mask IoU, mean over frames with movers  no ground truth" in capsys.readouterr().out
+    assert cv2.imread(str(out / "overlay_sheet.png")) is not None
+    assert moseg(["demo", "--out", str(out), "--bag", str(textured_bag), "--domain", str(ros_domain),
+                  "--method", "object_level"]) == 2
+    err = capsys.readouterr().err
+    assert "moseg demo: error:" in err and "/gt/instances" in err
+
+
 def test_bad_scene_arguments_are_refused_before_any_node_starts(tmp_path, capsys):
     for argv, reason in ((["--frames", "0"], "at least 2 frames"), (["--scenario", "rainy"], "presets: default")):
         assert moseg(["demo", "--out", str(tmp_path / "out"), "--bag", str(tmp_path / "bag"), *argv]) == 2

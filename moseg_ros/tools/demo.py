@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
-from moseg_ros.io.bags import read_images
+from moseg_ros.io.bags import list_topics, read_images
 from moseg_ros.methods import DEFAULT_METHOD
 from moseg_ros.params import all_settings
 from moseg_ros.pipeline import METHODS
@@ -82,11 +82,12 @@ def _overlay(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> np.nd
 
 
 def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) -> dict[str, str]:
-    """Write ``overlay_sheet.png`` (``tiles`` frames, 2 columns) and ``overlay.mp4`` (every frame, 10 fps)."""
+    """Write ``overlay_sheet.png`` (``tiles`` frames, 2 columns) and ``overlay.mp4`` (every frame, 10 fps); the
+    ground truth is drawn when the bag has it."""
     import imageio.v2 as imageio
 
     predicted = masks_by_stamp(masks_bag, MASK_TOPIC)
-    truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC)
+    truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
     frames = []
     for image in read_images(bag):
         rgb = image.rgb()
@@ -116,8 +117,9 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
              method: str = DEFAULT_METHOD) -> dict[str, Any]:
     """Render (if needed), replay through the node, score and picture; returns the summary written.
 
-    With method object_level the node runs with use_instances:=true and the bag's exact instance maps
-    (/gt/instances) stand in for an upstream instance segmenter.
+    Any camera bag may stand in for the rendered street: without /gt/dynamic_mask its masks are not scored (the
+    summary has no scores). With method object_level the node runs with use_instances:=true and the bag's exact
+    instance maps (/gt/instances) stand in for an upstream instance segmenter.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     if regenerate or not bag.exists():
@@ -137,8 +139,8 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
                         instances_topic=GT_TOPICS["instances"] if object_level else None)
     finally:
         exit_code = stop_segmenter(node)
-    score = score_bags(bag, masks_bag, MASK_TOPIC)
-    summary = {**report.summary(), **score.summary(), "node_exit_code": exit_code, "bag": str(bag),
+    scores = score_bags(bag, masks_bag, MASK_TOPIC).summary() if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
+    summary = {**report.summary(), **scores, "node_exit_code": exit_code, "bag": str(bag),
                "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate,
                "method": method}
     summary.update(write_pictures(bag, masks_bag, out_dir))
@@ -147,15 +149,18 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
 
 
 def print_table(summary: dict[str, Any]) -> None:
-    """The demo's summary as an aligned two-column table."""
+    """The demo's summary as an aligned two-column table (scores as "no ground truth" without one)."""
+    def score(key: str, digits: int) -> str:
+        return "no ground truth" if key not in summary else f"{summary[key]:.{digits}f}"
+
     rows = [("frames in", summary["frames_in"]), ("masks out", summary["masks_out"]),
             ("frames without mask", summary["frames_without_mask"]),
             ("header mismatches", summary["header_mismatches"]),
             ("latency p50 (ms)", f"{summary['latency_ms_p50']:.1f}"),
             ("latency p95 (ms)", f"{summary['latency_ms_p95']:.1f}"),
-            ("mask IoU, mean over frames with movers", f"{summary['iou_mean']:.3f}"),
-            ("moving-pixel recall, mean", f"{summary['recall_mean']:.3f}"),
-            ("static pixels flagged, mean", f"{summary['false_positive_rate_mean']:.4f}"),
+            ("mask IoU, mean over frames with movers", score("iou_mean", 3)),
+            ("moving-pixel recall, mean", score("recall_mean", 3)),
+            ("static pixels flagged, mean", score("false_positive_rate_mean", 4)),
             ("node exit code", summary["node_exit_code"]),
             ("contact sheet", summary["contact_sheet"]), ("video", summary["video"])]
     width = max(len(name) for name, _ in rows)
@@ -166,7 +171,9 @@ def print_table(summary: dict[str, Any]) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg demo`."""
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default: out/)")
-    parser.add_argument("--bag", type=Path, default=Path("bags/demo_street"), help="demo bag folder")
+    parser.add_argument("--bag", type=Path, default=Path("bags/demo_street"),
+                        help="demo bag folder, rendered when missing; any camera bag works (scored only when it "
+                             "has /gt/dynamic_mask)")
     parser.add_argument("--scenario", default="default", help="synthetic scenario (default: default)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frames", type=int, default=60)
@@ -185,8 +192,12 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as error:
         print(f"moseg demo: error: {error}", file=sys.stderr)
         return 2
-    summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
-                       domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method)
+    try:
+        summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
+                           domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method)
+    except (FileNotFoundError, ValueError) as error:  # a bag without a camera topic, or without /gt/instances
+        print(f"moseg demo: error: {error}", file=sys.stderr)
+        return 2
     print_table(summary)
     print(f"summary: {args.out / 'summary.json'}")
     ok = summary["frames_in"] == summary["masks_out"] and summary["node_exit_code"] == 0
