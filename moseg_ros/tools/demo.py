@@ -81,13 +81,14 @@ def _overlay(rgb: np.ndarray, predicted: np.ndarray, truth: np.ndarray) -> np.nd
     return out
 
 
-def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8) -> dict[str, str]:
+def write_pictures(bag: Path, masks_bag: Path, out_dir: Path, tiles: int = 8,
+                   has_truth: bool = True) -> dict[str, str]:
     """Write ``overlay_sheet.png`` (``tiles`` frames, 2 columns) and ``overlay.mp4`` (every frame, 10 fps); the
-    ground truth is drawn when the bag has it."""
+    ground truth is drawn when ``has_truth`` (the bag holds /gt/dynamic_mask)."""
     import imageio.v2 as imageio
 
     predicted = masks_by_stamp(masks_bag, MASK_TOPIC)
-    truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
+    truth = masks_by_stamp(bag, GT_DYNAMIC_TOPIC) if has_truth else {}
     frames = []
     for image in read_images(bag):
         rgb = image.rgb()
@@ -139,11 +140,12 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
                         instances_topic=GT_TOPICS["instances"] if object_level else None)
     finally:
         exit_code = stop_segmenter(node)
-    scores = score_bags(bag, masks_bag, MASK_TOPIC).summary() if GT_DYNAMIC_TOPIC in list_topics(bag) else {}
+    has_truth = GT_DYNAMIC_TOPIC in list_topics(bag)
+    scores = score_bags(bag, masks_bag, MASK_TOPIC).summary() if has_truth else {}
     summary = {**report.summary(), **scores, "node_exit_code": exit_code, "bag": str(bag),
                "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate,
                "method": method}
-    summary.update(write_pictures(bag, masks_bag, out_dir))
+    summary.update(write_pictures(bag, masks_bag, out_dir, has_truth=has_truth))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
 
