@@ -143,6 +143,24 @@ class TestSeedWidth:
         nearest = np.sort(np.linalg.norm(tracker.points[:, None] - tracker.points[None], axis=2), axis=1)[:, 1]
         assert len(tracker.points) > 100 and nearest.min() >= 8 - 2 * 1.6
 
+    def _seeded(self, shrunk: np.ndarray | None) -> PointTracker:
+        tracker = PointTracker(TrackerConfig(max_points=48, min_distance=5, quality=0.01, seed_width=200))
+        tracker.update(self._image(), shrunk=shrunk)
+        return tracker
+
+    def test_the_callers_shrunk_frame_gives_the_same_corners(self):
+        shrunk = cv2.resize(self._image(), (200, 100), interpolation=cv2.INTER_AREA)
+        alone, shared = self._seeded(None), self._seeded(shrunk)
+        np.testing.assert_array_equal(shared.points, alone.points)
+        np.testing.assert_array_equal(shared.ids, alone.ids)
+
+    def test_corners_are_found_on_the_callers_shrunk_frame(self):
+        # A blank frame of the seeding size has no corners: it is the one searched, not a second shrink of gray.
+        assert len(self._seeded(np.zeros((100, 200), np.uint8)).points) == 0
+
+    def test_a_shrunk_frame_of_another_size_is_not_used(self):
+        assert len(self._seeded(np.zeros((50, 100), np.uint8)).points) == len(self._seeded(None).points) > 40
+
 
 class TestSampled:
     def test_shape_and_units_of_a_half_size_flow(self):

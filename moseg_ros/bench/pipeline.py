@@ -56,7 +56,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     ms = []
     for i in range(len(frames)):
         start = time.perf_counter()
-        tracks.update(tracking[i], flow(dense[i], dense[i - 1]) if i else None)
+        tracks.update(tracking[i], flow(dense[i], dense[i - 1]) if i else None, dense[i])
         ms.append((time.perf_counter() - start) * 1e3)
     return np.array(ms[1:])
 

@@ -344,7 +344,8 @@ class MotionFrontEnd:
         with self.stages("tracks"):
             # The dense flow back to the previous frame is the tracks' starting guess (inverted) and backward
             # check too (frontend/tracks.py).
-            self._points.update(gray, flows[0] if flows is not None and self.config.dense_gap == 1 else None)
+            self._points.update(gray, flows[0] if flows is not None and self.config.dense_gap == 1 else None,
+                                self._grays[-1])
             self._frames.append((self._points.ids.copy(), self._points.points.copy()))
         gap = self.config.track_motion.gap
         pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None

@@ -69,16 +69,19 @@ class PointTracker:
         self._next_id = 0
         self.flow_checked = 0.0
 
-    def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None) -> None:
+    def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None,
+               shrunk: np.ndarray | None = None) -> None:
         """Track the living points into ``gray`` ((H, W) uint8), then seed new ones.
 
         ``backward_flow``: optional (h, w, 2) flow from ``gray`` to the previous frame, at any size of the same
         aspect (its vectors in its own pixels): inverted, KLT's starting guess (``landing``); the points it
-        brings back near their start skip KLT's backward pass."""
+        brings back near their start skip KLT's backward pass.
+        ``shrunk``: optional ``gray`` already shrunk (INTER_AREA) by the caller; corners are found on it when it
+        is ``seed_width`` wide, instead of shrinking ``gray`` again (the motion front-end's dense frame)."""
         self.flow_checked = 0.0
         if self._previous is not None and len(self.points):
             self._track(self._previous, gray, backward_flow)
-        self._seed(gray)
+        self._seed(gray, shrunk)
         self._previous = gray
 
     def _track(self, previous: np.ndarray, gray: np.ndarray, backward_flow: np.ndarray | None) -> None:
@@ -109,14 +112,16 @@ class PointTracker:
                                              self._lk, self._guided)
         return back, ok_back
 
-    def _seed(self, gray: np.ndarray) -> None:
+    def _seed(self, gray: np.ndarray, shrunk: np.ndarray | None = None) -> None:
         wanted = self.config.max_points - len(self.points)
         if wanted <= 0:
             return
         width = self.config.seed_width
         shrink = gray.shape[1] / width if 0 < width < gray.shape[1] else 1.0
         if shrink > 1:
-            gray = cv2.resize(gray, (width, max(1, round(gray.shape[0] / shrink))), interpolation=cv2.INTER_AREA)
+            size = (width, max(1, round(gray.shape[0] / shrink)))
+            gray = (shrunk if shrunk is not None and shrunk.shape == size[::-1]
+                    else cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
         spacing = max(1, round(self.config.min_distance / shrink))
         occupied = np.zeros(gray.shape, dtype=np.uint8)
         xy = np.clip(np.rint(self.points / shrink).astype(int), 0, np.array(gray.shape[::-1]) - 1)
