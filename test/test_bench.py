@@ -104,3 +104,37 @@ def test_pipeline_bench_paces_frames_at_a_camera_rate(textured_bag, capsys, monk
     # every frame starts no earlier than its time at 20 Hz after the first
     assert all(t - starts[0] >= i / 20 - 1e-3 for i, t in enumerate(starts))
     assert main(["bench", "pipeline", str(textured_bag), "--rate", "-1"]) == 2
+
+
+class TestRepeated:
+    RUNS = [{"frames": 11, "ms_p95": 30.0, "ratio": 1.2, "refit": "background", "stages": {"flow": {"p50": 5.0}}},
+            {"frames": 11, "ms_p95": 50.0, "ratio": 2.0, "refit": "background", "stages": {"flow": {"p50": 9.0}}},
+            {"frames": 11, "ms_p95": 40.0, "ratio": 1.5, "refit": "background", "stages": {"flow": {"p50": 6.0}}}]
+
+    def test_one_run_is_reported_as_it_is(self):
+        from moseg_ros.bench.pipeline import repeated
+
+        assert repeated(self.RUNS[:1]) == self.RUNS[0]
+
+    def test_medians_with_their_ranges(self):
+        from moseg_ros.bench.pipeline import repeated
+
+        result = repeated(self.RUNS)
+        assert result["repeats"] == 3 and result["ms_p95"] == 40.0 and result["ratio"] == 1.5
+        assert result["stages"] == {"flow": {"p50": 6.0}}
+        assert result["ranges"] == {"ms_p95": [30.0, 50.0], "ratio": [1.2, 2.0]}
+        assert result["frames"] == 11 and result["refit"] == "background"  # shared by every run: as it is
+
+
+def test_pipeline_bench_repeats_on_the_same_frames(textured_bag, capsys, monkeypatch):
+    import moseg_ros.bench.pipeline as bench
+
+    runs = []
+    run = bench.bench_pipeline
+    monkeypatch.setattr(bench, "bench_pipeline", lambda frames, *a, **k: runs.append(frames) or run(frames, *a, **k))
+    assert main(["bench", "pipeline", str(textured_bag), "--frames", "6", "--repeat", "2"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert len(runs) == 2 and runs[0] is runs[1] and result["repeats"] == 2 and result["frames"] == 5
+    assert result["ranges"]["ms_p95"][0] <= result["ms_p95"] <= result["ranges"]["ms_p95"][1]
+    assert main(["bench", "pipeline", str(textured_bag), "--repeat", "0"]) == 2
+    assert "--repeat >= 1" in capsys.readouterr().err

@@ -6,7 +6,8 @@ decisions the frames applied (the node's ``refit`` auto: background), and the fl
 the same frames: KLT tracking at ``track_width`` plus the dense DIS flow back to the frame before at
 ``working_width`` with the method's preset and nothing else, the least any method of this design does per
 frame. ``ratio`` is the pipeline's p95 over the floor's. The node keeps up with a camera when p95 stays under the
-frame period.
+frame period. With ``--repeat N`` the whole run is done N times and each number is the median of the runs, with
+its range beside it (``ranges``).
 Frames come back to back, or with ``--rate HZ`` at a camera's pace: then the refit's worker gets the time the
 frame path leaves between frames, as in the node, and the decisions' age says how often it refits.
 """
@@ -102,6 +103,26 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
             "ratio": float(np.percentile(ms, 95) / np.percentile(floor, 95))}
 
 
+def repeated(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """One result from several ``bench_pipeline`` runs on the same frames: each number that varied is the
+    median over the runs (each stage's p50 and p95 too; ``ratio`` the median of the runs' ratios), with its
+    smallest and largest value in ``ranges``; what all runs share (frames, size) stays as it is; ``repeats``
+    counts the runs. A machine whose speed drifts between runs (a shared host: the same run varies by a third
+    here) shows it in the ranges instead of in one run's luck."""
+    if len(runs) == 1:
+        return runs[0]
+    numbers = [key for key, value in runs[0].items()
+               if isinstance(value, (int, float)) and len({run.get(key) for run in runs}) > 1]
+    result: dict[str, Any] = {**runs[0], "repeats": len(runs)}
+    result.update({key: float(np.median([run[key] for run in runs])) for key in numbers})
+    result["stages"] = {name: {p: float(np.median([run["stages"][name][p] for run in runs])) for p in percentiles}
+                        for name, percentiles in runs[0]["stages"].items()
+                        if all(name in run["stages"] for run in runs)}
+    result["ranges"] = {key: [float(min(run[key] for run in runs)), float(max(run[key] for run in runs))]
+                        for key in numbers}
+    return result
+
+
 def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
     """Where the refits ran, how long each took and how old the decisions the frames applied were."""
     refit_ms = np.array([sum(r.refit_stages.values()) * 1e3 for r in results if r.refit_stages])
@@ -130,6 +151,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rate", type=float, default=0.0, metavar="HZ",
                         help="feed the frames at a camera's rate (default 0: back to back)")
     parser.add_argument("--topic", help="image topic of the bag (default: its one camera image topic)")
+    parser.add_argument("--repeat", type=int, default=1, metavar="N",
+                        help="run N times on the same frames and report medians, with each number's range "
+                             "(default 1)")
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the result here")
     add_settings_arguments(parser)  # --method object_level runs on the synthetic street's ground-truth instances
 
@@ -152,10 +176,12 @@ def run(args: argparse.Namespace) -> int:
             frames, decode_ms = _bag_frames(args.bag, args.frames, args.topic)
         except (FileNotFoundError, ValueError) as error:  # no bag, not a bag, damaged, no or several image topics
             return _error(str(error))
-    if len(frames) < 3 or args.rate < 0:
-        return _error(f"need at least 3 frames and a rate >= 0, got {len(frames)} and {args.rate}")
+    if len(frames) < 3 or args.rate < 0 or args.repeat < 1:
+        return _error(f"need at least 3 frames, a rate >= 0 and --repeat >= 1, got {len(frames)}, {args.rate} "
+                      f"and {args.repeat}")
     with threadpool_limits(1):
-        result = bench_pipeline(frames, config, instances, decode_ms, args.rate)
+        result = repeated([bench_pipeline(frames, config, instances, decode_ms, args.rate)
+                           for _ in range(args.repeat)])
     text = json.dumps({"method": config.method, "flow_preset": config.dis_preset(), **result}, indent=2)
     print(text)
     if args.json:
