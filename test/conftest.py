@@ -87,3 +87,32 @@ def pan_follow_flow(height: int = 120, width: int = 320, degrees: float = 1.0):
     is_car[50:90, 130:200] = True
     to_previous[is_car] = 0.0
     return to_previous, is_car, K_flow
+
+
+def oncoming_street_flow(height: int = 120, width: int = 320, oncoming: bool = True, lateral: float = 0.0):
+    """The dense flow (current -> previous frame) of the street of ``oncoming_street``, ray-cast per pixel: a camera
+    1.5 m above a flat road that drove 1 m forward (and ``lateral`` m to the right) since the previous frame,
+    between walls at x = +-6 m; the front faces of a car parked 15 m ahead on the right and, in the left lane, of
+    a car 16 m ahead that drove 1 m towards the camera (``oncoming``; else parked there too). Returns
+    to_previous (H, W, 2), is_parked (H, W), is_oncoming (H, W), K."""
+    K_flow = np.array([[300.0, 0.0, width / 2], [0.0, 300.0, height / 2], [0.0, 0.0, 1.0]])
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(K_flow).T  # z = 1
+    with np.errstate(divide="ignore"):
+        hits = [np.where(rays[..., 1] > 0, 1.5 / rays[..., 1], np.inf),  # the road (y = 1.5 m, y points down)
+                np.where(rays[..., 0] != 0, 6.0 / np.abs(rays[..., 0]), np.inf)]  # the walls
+    depth = np.minimum(np.minimum(*hits), 200.0)
+    is_face = []
+    for x0, x1, z in ((3.0, 4.8, 15.0), (-3.5, -1.7, 16.0)):
+        x, y = rays[..., 0] * z, rays[..., 1] * z
+        face = (x >= x0) & (x <= x1) & (y >= 0.0) & (y <= 1.5) & (z < depth)
+        depth[face] = z
+        is_face.append(face)
+    world = rays * depth[..., None]
+    world[..., 2] += 1.0  # where the current frame's points lay in the previous camera's frame
+    world[..., 0] += lateral
+    if oncoming:
+        world[is_face[1], 2] += 1.0  # the car was 1 m farther
+    seen = world @ K_flow.T
+    to_previous = (seen[..., :2] / seen[..., 2:] - np.stack([xs, ys], axis=-1)).astype(np.float32)
+    return to_previous, is_face[0], is_face[1], K_flow

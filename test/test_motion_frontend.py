@@ -7,7 +7,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from conftest import pan_follow_flow, textured_frames
+from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, dense_near,
@@ -167,6 +167,32 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestDenseFooting:
+    """The refit's dense mask holds a car that drives towards the camera, which only the footing test sees."""
+
+    @staticmethod
+    def _refit(dense_footing: bool = True, oncoming: bool = True):
+        backward, is_parked, is_oncoming, K = oncoming_street_flow(oncoming=oncoming)
+        gray = np.random.default_rng(0).integers(0, 255, is_parked.shape).astype(np.uint8)
+        config = MotionFrontEndConfig(dense_width=is_parked.shape[1], dense_footing=dense_footing)
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, False, (backward, -backward), gray,
+                                  is_parked.shape)
+        return MotionFrontEnd(config).refit(observation).dense, is_parked, is_oncoming
+
+    def test_the_oncoming_car_is_in_the_dense_mask_and_the_parked_one_is_not(self):
+        dense, is_parked, is_oncoming = self._refit()
+        # Its columns next to the focus of expansion have too little parallax to decide (``ground_min_px``).
+        assert dense[is_oncoming].mean() > 0.5 and not dense[is_parked].any() and dense.mean() < 0.05
+
+    def test_without_it_the_oncoming_car_is_not(self):
+        dense, _, is_oncoming = self._refit(dense_footing=False)
+        assert dense[is_oncoming].mean() < 0.05
+
+    def test_a_parked_car_in_its_place_is_not(self):
+        dense, _, is_oncoming = self._refit(oncoming=False)
+        assert dense[is_oncoming].mean() < 0.05
 
 
 class TestAwayFromBorder:

@@ -10,13 +10,15 @@ import cv2
 import numpy as np
 import pytest
 
-from conftest import pan_follow_flow
+from conftest import oncoming_street_flow, pan_follow_flow
+from moseg_ros.core.baseline import sampson_pixels
+from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
-                                         far_behind, footing_columns, footing_excess, ground_floor,
-                                         ground_parallax_ratio,
-                                         ground_slope, guessed_camera_matrix, may_be_planar,
-                                         moving_tracks, pair_evidence, pair_residual, pair_residuals, row_medians,
-                                         signed_parallax, standing_rows, standing_shortfall)
+                                         dense_parallax, far_behind, footing_columns, footing_excess, ground_floor,
+                                         ground_parallax_ratio, ground_slope, guessed_camera_matrix, may_be_planar,
+                                         moving_tracks, nearer_than_road, pair_evidence, pair_residual,
+                                         pair_residuals, row_medians, signed_parallax, standing_rows,
+                                         standing_shortfall)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -518,7 +520,7 @@ class TestBehindInfinity:
     def test_the_body_of_the_followed_car_is_behind_infinity_and_the_background_is_not(self):
         to_previous, is_car, K_flow = pan_follow_flow()
         valid = np.ones(is_car.shape, bool)
-        behind = behind_infinity(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        behind = behind_infinity(dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow), valid)
         assert behind.shape == is_car.shape and behind.dtype == bool
         assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01
 
@@ -526,23 +528,66 @@ class TestBehindInfinity:
         to_previous, is_car, K_flow = pan_follow_flow()
         valid = np.ones(is_car.shape, bool)
         valid[:, 160:] = False
-        behind = behind_infinity(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        behind = behind_infinity(dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow), valid)
         assert not behind[:, 160:].any() and behind[is_car & valid].mean() > 0.95
 
     def test_no_mask_when_the_vote_cannot_decide(self):
         to_previous, is_car, K_flow = pan_follow_flow()
         unanimous = TrackMotionConfig(cheir_consensus=1.0)  # the car votes against: never unanimous
-        assert behind_infinity(to_previous, np.ones(is_car.shape, bool), _dense_fundamental(to_previous), K_flow,
-                               unanimous) is None
+        assert dense_parallax(to_previous, np.ones(is_car.shape, bool), _dense_fundamental(to_previous), K_flow,
+                              unanimous) is None
 
     def test_a_pair_that_turns_more_than_allowed_keeps_only_what_is_far_behind_infinity(self):
         to_previous, is_car, K_flow = pan_follow_flow()  # turns 1 degree
         F, valid = _dense_fundamental(to_previous), np.ones(is_car.shape, bool)
-        behind = behind_infinity(to_previous, valid, F, K_flow, max_rotation_deg=0.5, guessed=True)
+        behind = behind_infinity(dense_parallax(to_previous, valid, F, K_flow, max_rotation_deg=0.5), valid,
+                                 guessed=True)
         assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01  # still: all of the rotation
         never = TrackMotionConfig(guessed_behind_share=np.inf)
-        assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=0.5) is None
-        assert behind_infinity(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
+        assert dense_parallax(to_previous, valid, F, K_flow, never, max_rotation_deg=0.5) is None
+        assert dense_parallax(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
+
+
+class TestNearerThanRoad:
+    def _near(self, to_previous, K_flow, valid=None, config=TrackMotionConfig()):
+        valid = np.ones(to_previous.shape[:2], bool) if valid is None else valid
+        parallax = dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow, config)
+        return nearer_than_road(parallax, valid, config)
+
+    def test_shape_and_kind(self):
+        to_previous, _, _, K_flow = oncoming_street_flow()
+        near = self._near(to_previous, K_flow)
+        assert near.shape == to_previous.shape[:2] and near.dtype == bool
+
+    def test_the_oncoming_car_is_nearer_than_the_road_and_nothing_static_is(self):
+        to_previous, is_parked, is_oncoming, K_flow = oncoming_street_flow()
+        near = self._near(to_previous, K_flow)
+        # Its lowest rows are as near as the road under them up to the margin; the face above is not.
+        assert near[is_oncoming].mean() > 0.9
+        assert not near[~is_oncoming].any()
+
+    def test_the_same_car_parked_is_not(self):
+        to_previous, _, _, K_flow = oncoming_street_flow(oncoming=False)
+        assert not self._near(to_previous, K_flow).any()
+
+    def test_the_residual_and_cheirality_tests_do_not_see_it(self):
+        to_previous, _, is_oncoming, K_flow = oncoming_street_flow()
+        valid = np.ones(is_oncoming.shape, bool)
+        F = _dense_fundamental(to_previous)
+        assert not behind_infinity(dense_parallax(to_previous, valid, F, K_flow), valid)[is_oncoming].any()
+        here = pixel_grid(*valid.shape)[is_oncoming]
+        assert np.median(sampson_pixels(F, here, here + to_previous[is_oncoming])) < 0.1  # in the epipolar plane
+
+    def test_unreliable_pixels_are_never_flagged(self):
+        to_previous, _, is_oncoming, K_flow = oncoming_street_flow()
+        valid = np.ones(is_oncoming.shape, bool)
+        valid[:, :160] = False  # the oncoming car's half
+        near = self._near(to_previous, K_flow, valid)
+        assert near is not None and not near.any()
+
+    def test_none_when_the_camera_does_not_drive_along_its_axis(self):
+        to_previous, _, _, K_flow = oncoming_street_flow(lateral=3.0)  # 3 m sideways to 1 m forward
+        assert self._near(to_previous, K_flow) is None
 
 
 def oncoming_street(frames: int = 6, seed: int = 0):

@@ -65,11 +65,17 @@ no higher than its own lowest track (the lowest one under it at its inverse dept
 footing), so the fitted ground's inverse depth at the lower of those rows bounds it. A road track is never the
 object's own: an oncoming car seems as near as the road some way in front of it, and that road, seen under the
 car's columns, would otherwise pass for the car's lowest part.
+
+The dense flow gives the footing test what the tracks lack while an oncoming car is far: ``nearer_than_road``
+runs it on every pixel of a flow's ``dense_parallax`` (the cheirality vote ``behind_infinity`` reads too), with the
+road's inverse depth fitted to the flow's own pixels and the first road pixel under each pixel in its column as
+its footing. DIS smears the car's flow a few rows onto the road under it (README), so the footing comes out a
+little nearer than the car's foot; it still lies far closer to the foot than the first road track.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import cv2
@@ -272,25 +278,39 @@ def guessed_signs(x1: np.ndarray, parallax: Parallax, share: float) -> np.ndarra
     return np.where((parallax.signed >= 0) | far, parallax.signed, 0.0)
 
 
-def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
-                    config: TrackMotionConfig = TrackMotionConfig(), *, threshold_px: float = 1.0,
-                    step: int = 10, inlier_px: float = 0.5, max_rotation_deg: float = np.inf,
-                    guessed: bool = False) -> np.ndarray | None:
-    """(H, W) bool: pixels of a dense flow whose signed parallax is below -``threshold_px`` (the cheirality
-    test of ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling
-    away, where tracks are few).
+class DenseParallax(NamedTuple):
+    """The signed parallax of every pixel of a dense flow (``dense_parallax``).
+
+    Attributes:
+        vote: the sampled pixels' ``signed_parallax`` (its rotation and oriented translation hold for every pixel).
+        signed: (H, W) float32 pixels, positive in front of infinity.
+        gain: (H, W) float32 pixels of parallax per unit of inverse depth.
+        epipole_row: the epipole's row in the flow's own frame when the camera moves along its axis (at least
+            ``ground_min_forward`` of its translation, forward or back: the flow runs from the current frame to
+            the previous one) and the pair is not ``turned``; else None.
+    """
+
+    vote: Parallax
+    signed: np.ndarray
+    gain: np.ndarray
+    epipole_row: float | None
+
+
+def dense_parallax(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
+                   config: TrackMotionConfig = TrackMotionConfig(), *, step: int = 10, inlier_px: float = 0.5,
+                   max_rotation_deg: float = np.inf) -> DenseParallax | None:
+    """The cheirality of ``signed_parallax`` for every pixel of a dense flow: the translation's sign voted by every
+    ``step``-th reliable pixel within ``inlier_px`` of its epipolar line, then each pixel's parallax against the
+    plane at infinity. ``behind_infinity`` and ``nearer_than_road`` read it.
 
     Args:
         to_previous: (H, W, 2) flow from the current frame to the previous one.
         valid: (H, W) bool pixels whose flow is reliable (forward-backward).
         fundamental: (3, 3) F with x_prev^T F x_cur = 0 (core/baseline.epipolar_residual's).
         K: (3, 3) camera matrix at the flow's size.
-        config: the sign's vote (``cheir_consensus`` and friends).
-        threshold_px: parallax below minus this moves.
-        step, inlier_px: the vote uses every ``step``-th pixel within ``inlier_px`` of its epipolar line.
+        config: the sign's vote (``cheir_consensus`` and friends) and ``ground_min_forward``.
+        step, inlier_px: which pixels vote.
         max_rotation_deg: as in ``signed_parallax``.
-        guessed: K is a guess: a pixel is behind infinity only by at least ``config.guessed_behind_share`` of
-            the rotation's image motion there (``far_behind``).
 
     Returns:
         None when the vote does not decide the translation's sign.
@@ -307,13 +327,86 @@ def behind_infinity(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.
                            max_rotation_deg)
     if vote is None:
         return None
-    signed, _ = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
-    behind = signed < -threshold_px
+    signed, gain = oriented_parallax(grid.reshape(-1, 2), landing.reshape(-1, 2), vote.rotation, vote.translation)
+    t = np.linalg.solve(K, vote.translation)
+    along = abs(t[2]) / max(float(np.linalg.norm(t)), 1e-12)
+    epipole = np.linalg.solve(vote.rotation, vote.translation)  # in the current frame, where the grid lies
+    epipole_row = float(epipole[1] / epipole[2]) if along >= config.ground_min_forward and not vote.turned else None
+    return DenseParallax(vote, signed.reshape(h, w), gain.reshape(h, w), epipole_row)
+
+
+def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
+                    threshold_px: float = 1.0, guessed: bool = False) -> np.ndarray:
+    """(H, W) bool: reliable pixels whose signed parallax is below -``threshold_px`` (the cheirality test of
+    ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling away,
+    where tracks are few).
+
+    Args:
+        parallax: the flow's ``dense_parallax``.
+        valid: (H, W) bool pixels whose flow is reliable.
+        config: ``guessed_behind_share``.
+        threshold_px: parallax below minus this moves.
+        guessed: K is a guess: a pixel is behind infinity only by at least ``config.guessed_behind_share`` of
+            the rotation's image motion there (``far_behind``).
+    """
+    h, w = valid.shape
+    behind = (parallax.signed < -threshold_px).ravel()
     if guessed:  # tested where behind only: a few pixels of the frame
         where = np.flatnonzero(behind)
-        behind[where] = far_behind(grid.reshape(-1, 2)[where].astype(np.float64), signed[where], vote.rotation,
-                                   config.guessed_behind_share)
+        behind[where] = far_behind(pixel_grid(h, w).reshape(-1, 2)[where].astype(np.float64),
+                                   parallax.signed.ravel()[where], parallax.vote.rotation, config.guessed_behind_share)
     return behind.reshape(h, w) & valid
+
+
+def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
+                     sample_step: int = 4) -> np.ndarray | None:
+    """(H, W) bool: reliable pixels below the epipole that look nearer than the road where they stand, the footing
+    test (``footing_excess``) for every pixel of a dense flow.
+
+    The road's inverse depth is ``ground_slope`` fitted to every ``sample_step``-th reliable pixel. A pixel of the
+    road is one within ``footing_road_tol`` of it; a pixel stands no lower than the first road pixel under it in
+    its column, so the road's inverse depth there bounds a static pixel's own. A pixel moves when its parallax
+    exceeds ``1 + footing_margin`` times the parallax that bound gives it by more than ``footing_px``. An
+    oncoming car closes in faster than the camera drives and looks nearer than the road it stands on; its
+    tracks are few while it is far, and the first road track under it lies well below the road it stands on
+    (README), while the dense flow sees the road up to a few pixels under its bumper. The lower part of a static
+    object is as near as its foot, so it passes for road within the tolerance, and a margin at least the
+    tolerance keeps the object above it unflagged.
+
+    Args:
+        parallax: the flow's ``dense_parallax``.
+        valid: (H, W) bool pixels whose flow is reliable.
+        config: the footing and ground settings.
+        sample_step: the stride of the pixels the road's slope is fitted to.
+
+    Returns:
+        None without an epipole row (the camera does not move along its axis, or the pair turned) or a road.
+    """
+    if parallax.epipole_row is None:
+        return None
+    h, w = valid.shape
+    sample = (slice(None, None, sample_step), slice(None, None, sample_step))
+    keep = valid[sample]
+    pixels = pixel_grid(h, w)[sample][keep].astype(np.float64)
+    sampled = replace(parallax.vote, signed=parallax.signed[sample][keep], gain=parallax.gain[sample][keep],
+                      epipole_row=parallax.epipole_row)
+    slope = ground_slope(pixels, sampled, config)
+    if slope is None:
+        return None
+    rows = np.arange(h, dtype=np.float32)[:, None]
+    below = rows > parallax.epipole_row
+    road_depth = slope * np.maximum(rows - parallax.epipole_row, 0.0)  # (H, 1) inverse depth x baseline
+    road_px = road_depth * parallax.gain
+    depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
+    road = valid & below & (road_px >= config.ground_min_px) & (
+        np.abs(depth - road_depth) <= config.footing_road_tol * road_depth)
+    # The first road row at or under each pixel of its column (h: none), a running minimum from the image's bottom
+    # up; in the smallest integer type that holds h, twice as fast as in floats.
+    index = np.arange(h, dtype=np.min_scalar_type(h))[:, None]
+    first_road = np.minimum.accumulate(np.where(road, index, index.dtype.type(h))[::-1], axis=0)[::-1]
+    footing_px = slope * np.maximum(first_road.astype(np.float32) - parallax.epipole_row, 0.0) * parallax.gain
+    decided = valid & below & (first_road < h) & (footing_px >= config.ground_min_px)
+    return decided & (parallax.signed > (1.0 + config.footing_margin) * footing_px + config.footing_px)
 
 
 def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig()) -> float | None:

@@ -28,7 +28,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   texture where the flow is at most ``smooth_max_flow`` (DIS carries a small motion from textured edges into
   the smooth body of an animal or a car, but not a large one: the near road of a driving camera), and pixels
   behind infinity by more than ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the
-  smooth body of an object the camera follows has a flow of about zero, which its few tracks cannot fill).
+  smooth body of an object the camera follows has a flow of about zero, which its few tracks cannot fill), and,
+  with ``dense_footing``, pixels nearer than the road under them (core/track_motion.nearer_than_road: the
+  footing test of the tracks on every pixel, for the oncoming car).
 
 The dense mask holds on for a frame where it goes on: of the last refit's dense mask, carried along the flow,
 the regions that touch this refit's are kept (hysteresis, as in Canny's edges: a mover's residual flickers
@@ -53,7 +55,8 @@ from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_r
 from moseg_ros.core.flow_field import away_from_border, pixel_grid
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, aperture_share, behind_infinity,
-                                         guessed_camera_matrix, moving_tracks, pair_evidence, short_of_ground)
+                                         dense_parallax, guessed_camera_matrix, moving_tracks, nearer_than_road,
+                                         pair_evidence, short_of_ground)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -108,6 +111,10 @@ class MotionFrontEndConfig:
     smooth_max_flow: float = 8.0
     close_px: int = 5
     dense_cheir_px: float = 1.0
+    # The footing test on every pixel of the dense flow (core/track_motion.nearer_than_road, with the track test's
+    # footing settings): a far oncoming car holds few tracks, and the first road track under it lies well below
+    # the road it stands on (README).
+    dense_footing: bool = True
     # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
     # whole last mask, which flagged more static pixels for the same recall (README).
     dense_hysteresis: bool = True
@@ -559,14 +566,17 @@ class MotionFrontEnd:
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         if self.config.min_texture > 0:
             moving &= self._reliable(gray, backward)
-        if evidence.homography is None and self.config.dense_cheir_px > 0:
-            # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
+        if evidence.homography is None and (self.config.dense_cheir_px > 0 or self.config.dense_footing):
+            # Neither is gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
             limit = self._guessed_rotation_limit(self.config.dense_gap) if observation.guessed else np.inf
-            behind = behind_infinity(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
-                                     threshold_px=self.config.dense_cheir_px,
-                                     inlier_px=self.config.dense_baseline.ransac_threshold_px,
-                                     max_rotation_deg=limit, guessed=observation.guessed)
-            if behind is not None:
-                moving |= behind
+            parallax = dense_parallax(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
+                                      inlier_px=self.config.dense_baseline.ransac_threshold_px, max_rotation_deg=limit)
+            if parallax is not None and self.config.dense_cheir_px > 0:
+                moving |= behind_infinity(parallax, evidence.valid, self.config.track_motion,
+                                          threshold_px=self.config.dense_cheir_px, guessed=observation.guessed)
+            near = (nearer_than_road(parallax, evidence.valid, self.config.track_motion)
+                    if parallax is not None and self.config.dense_footing else None)
+            if near is not None:
+                moving |= near
         return moving
