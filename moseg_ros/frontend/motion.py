@@ -54,9 +54,9 @@ from scipy.spatial import cKDTree
 from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
 from moseg_ros.core.flow_field import away_from_border, pixel_grid
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
-from moseg_ros.core.track_motion import (PairEvidence, TrackMotionConfig, aperture_share, behind_infinity,
-                                         dense_parallax, guessed_camera_matrix, moving_tracks, nearer_than_road,
-                                         pair_evidence, short_of_ground)
+from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
+                                         behind_infinity, dense_parallax, guessed_camera_matrix, moving_tracks,
+                                         nearer_than_road, pair_evidence, short_of_ground)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
@@ -572,11 +572,16 @@ class MotionFrontEnd:
             limit = self._guessed_rotation_limit(self.config.dense_gap) if observation.guessed else np.inf
             parallax = dense_parallax(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                       inlier_px=self.config.dense_baseline.ransac_threshold_px, max_rotation_deg=limit)
-            if parallax is not None and self.config.dense_cheir_px > 0:
-                moving |= behind_infinity(parallax, evidence.valid, self.config.track_motion,
-                                          threshold_px=self.config.dense_cheir_px, guessed=observation.guessed)
-            near = (nearer_than_road(parallax, evidence.valid, self.config.track_motion)
-                    if parallax is not None and self.config.dense_footing else None)
-            if near is not None:
-                moving |= near
+            if parallax is not None:
+                moving |= self._against_parallax(parallax, evidence.valid, observation.guessed)
         return moving
+
+    def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray, guessed: bool) -> np.ndarray:
+        """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``) or nearer than the
+        road under them (``dense_footing``)."""
+        moving = np.zeros(valid.shape, dtype=bool)
+        if self.config.dense_cheir_px > 0:
+            moving |= behind_infinity(parallax, valid, self.config.track_motion,
+                                      threshold_px=self.config.dense_cheir_px, guessed=guessed)
+        near = nearer_than_road(parallax, valid, self.config.track_motion) if self.config.dense_footing else None
+        return moving if near is None else moving | near
