@@ -585,6 +585,15 @@ class TestNearerThanRoad:
         near = self._near(to_previous, K_flow, valid)
         assert near is not None and not near.any()
 
+    def test_the_least_excess_is_in_the_flows_own_pixels(self):
+        to_previous, _, is_oncoming, K_flow = oncoming_street_flow()
+        valid = np.ones(is_oncoming.shape, bool)
+        parallax = dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        default = nearer_than_road(parallax, valid)  # the track test's footing_px
+        assert np.array_equal(default, nearer_than_road(parallax, valid, excess_px=TrackMotionConfig().footing_px))
+        assert nearer_than_road(parallax, valid, excess_px=0.25)[is_oncoming].sum() >= default[is_oncoming].sum()
+        assert not nearer_than_road(parallax, valid, excess_px=50.0).any()  # more than the car's whole parallax
+
     def test_none_when_the_camera_does_not_drive_along_its_axis(self):
         to_previous, _, _, K_flow = oncoming_street_flow(lateral=3.0)  # 3 m sideways to 1 m forward
         assert self._near(to_previous, K_flow) is None

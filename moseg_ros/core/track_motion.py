@@ -359,14 +359,14 @@ def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMot
 
 
 def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
-                     sample_step: int = 4) -> np.ndarray | None:
+                     excess_px: float | None = None, sample_step: int = 4) -> np.ndarray | None:
     """(H, W) bool: reliable pixels below the epipole that look nearer than the road where they stand, the footing
     test (``footing_excess``) for every pixel of a dense flow.
 
     The road's inverse depth is ``ground_slope`` fitted to every ``sample_step``-th reliable pixel. A pixel of the
     road is one within ``footing_road_tol`` of it; a pixel stands no lower than the first road pixel under it in
     its column, so the road's inverse depth there bounds a static pixel's own. A pixel moves when its parallax
-    exceeds ``1 + footing_margin`` times the parallax that bound gives it by more than ``footing_px``. An
+    exceeds ``1 + footing_margin`` times the parallax that bound gives it by more than ``excess_px``. An
     oncoming car closes in faster than the camera drives and looks nearer than the road it stands on; its
     tracks are few while it is far, and the first road track under it lies well below the road it stands on
     (README), while the dense flow sees the road up to a few pixels under its bumper. The lower part of a static
@@ -377,6 +377,7 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
         parallax: the flow's ``dense_parallax``.
         valid: (H, W) bool pixels whose flow is reliable.
         config: the footing and ground settings.
+        excess_px: the least excess in the flow's own pixels (default ``footing_px``, which is in the tracks').
         sample_step: the stride of the pixels the road's slope is fitted to.
 
     Returns:
@@ -406,7 +407,8 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
     first_road = np.minimum.accumulate(np.where(road, index, index.dtype.type(h))[::-1], axis=0)[::-1]
     footing_px = slope * np.maximum(first_road.astype(np.float32) - parallax.epipole_row, 0.0) * parallax.gain
     decided = valid & below & (first_road < h) & (footing_px >= config.ground_min_px)
-    return decided & (parallax.signed > (1.0 + config.footing_margin) * footing_px + config.footing_px)
+    excess_px = config.footing_px if excess_px is None else excess_px
+    return decided & (parallax.signed > (1.0 + config.footing_margin) * footing_px + excess_px)
 
 
 def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig()) -> float | None:

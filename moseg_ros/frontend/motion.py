@@ -115,6 +115,10 @@ class MotionFrontEndConfig:
     # footing settings): a far oncoming car holds few tracks, and the first road track under it lies well below
     # the road it stands on (README).
     dense_footing: bool = True
+    # Its least excess over the footing, in the dense flow's pixels over ``dense_gap`` frames: a far oncoming car
+    # moves 2-4 px a frame at 640 px, and the track test's 1 px (at full size over two frames) stopped it; 0.25 is
+    # about that 1 px in these units (README).
+    dense_footing_px: float = 0.25
     # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
     # whole last mask, which flagged more static pixels for the same recall (README).
     dense_hysteresis: bool = True
@@ -583,5 +587,6 @@ class MotionFrontEnd:
         if self.config.dense_cheir_px > 0:
             moving |= behind_infinity(parallax, valid, self.config.track_motion,
                                       threshold_px=self.config.dense_cheir_px, guessed=guessed)
-        near = nearer_than_road(parallax, valid, self.config.track_motion) if self.config.dense_footing else None
+        near = (nearer_than_road(parallax, valid, self.config.track_motion, excess_px=self.config.dense_footing_px)
+                if self.config.dense_footing else None)
         return moving if near is None else moving | near
