@@ -352,6 +352,11 @@ def main(args: list[str] | None = None) -> int:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # rclpy's signal handler can shut the context down while the executor builds its wait set
+        # (ros2/rclpy#402); the executor then raises RCLError instead of ExternalShutdownException.
+        if rclpy.ok():
+            raise
     except (ValueError, ParameterException) as error:
         print(f"segmenter: invalid parameters: {error}", file=sys.stderr)
         return 2

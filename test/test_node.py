@@ -215,6 +215,32 @@ def test_clean_exit_on_signal(ros_domain, tmp_path, sig):
     assert process.wait(timeout=10) == 0, (tmp_path / "log").read_text()
 
 
+@pytest.mark.parametrize("context_shut_down", [True, False])
+def test_an_executor_error_is_a_clean_exit_only_when_the_context_was_shut_down(ros_domain, monkeypatch,
+                                                                                context_shut_down):
+    """SIGTERM's handler may shut the context down while spin() builds its wait set: rclpy then raises
+    RCLError (a RuntimeError), which must end the node with 0; the same error on a live context is a bug."""
+    from rclpy._rclpy_pybind11 import RCLError
+
+    from moseg_ros import node as node_module
+
+    for key, value in loopback_env(ros_domain).items():
+        monkeypatch.setenv(key, value)
+
+    def spin_into_a_shutdown(executor):
+        if context_shut_down:
+            rclpy.shutdown()
+        raise RCLError("failed to initialize wait set: the given context is not valid")
+
+    monkeypatch.setattr(node_module.SingleThreadedExecutor, "spin", spin_into_a_shutdown)
+    if context_shut_down:
+        assert node_module.main(["segmenter"]) == 0
+    else:
+        with pytest.raises(RCLError, match="wait set"):
+            node_module.main(["segmenter"])
+    assert not rclpy.ok()
+
+
 def test_invalid_parameter_is_refused_with_a_clear_message(ros_domain, tmp_path):
     log = tmp_path / "log"
     process = start_segmenter(ros_domain, log, params=["flow_preset:=warp"])
