@@ -14,6 +14,7 @@ from conftest import oncoming_street_flow, pan_follow_flow
 from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
+                                         beyond_allowance,
                                          dense_parallax, far_behind, footing_columns, footing_excess, ground_floor,
                                          ground_parallax_ratio, ground_slope, guessed_camera_matrix, may_be_planar,
                                          moving_tracks, nearer_than_road, pair_evidence, pair_residual,
@@ -68,6 +69,47 @@ class TestPairResidual:
         assert evidence.signed is None and evidence.ground is None and evidence.footing is None
         distance = evidence.distance
         assert np.allclose(distance[:20], 4.0, atol=0.3) and np.median(distance[20:]) < 0.1
+
+
+class TestBeyondAllowance:
+    def test_shape_dtype_and_known_values(self):
+        x1 = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 0.0]])
+        x2 = np.array([[100.0, 0.0], [10.0, 20.0], [3.0, 4.0]])
+        out = beyond_allowance(np.array([4.0, 0.5, 1.0]), x1, x2, 0.03)
+        assert out.shape == (3,) and out.dtype == np.float32
+        np.testing.assert_allclose(out, [1.0, 0.0, 0.85], atol=1e-6)
+
+    def test_no_allowance_leaves_the_distance(self):
+        distance = np.array([0.2, 3.0])
+        x1 = np.zeros((2, 2))
+        np.testing.assert_array_equal(beyond_allowance(distance, x1, x1 + 50.0, 0.0), distance.astype(np.float32))
+
+    def test_pair_evidence_takes_it_off_every_track_under_f(self):
+        tracks, _ = street()
+        x1, x2 = tracks[:, 0], tracks[:, 2]
+        whole = pair_evidence(x1, x2, dataclasses.replace(TrackMotionConfig(), epipole_allowance=0.0), K).distance
+        less = pair_evidence(x1, x2, dataclasses.replace(TrackMotionConfig(), epipole_allowance=0.03), K).distance
+        displacement = np.linalg.norm(x2 - x1, axis=1)
+        np.testing.assert_allclose(less, np.maximum(whole - 0.03 * displacement, 0), atol=1e-5)
+
+    def test_near_static_tracks_off_their_lines_by_a_small_angle_are_forgiven_and_the_mover_is_not(self):
+        """The epipolar lines of near static points turned by 1.2 degrees (an epipole fitted a little off, KLT
+        drifting along a reflection): without the allowance half of them move; with it none, while the block
+        crossing the road still does."""
+        tracks, mover = street()
+        x1, x2 = tracks[:, 0].astype(np.float64), tracks[:, 2].astype(np.float64)
+        step = x2 - x1
+        near = ~mover & (np.linalg.norm(step, axis=1) > 40) & (np.linalg.norm(step, axis=1) < 200)
+        angle = np.deg2rad(1.2)
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        x2[near] = x1[near] + step[near] @ turn.T
+        flagged = {}
+        for allowance in (0.0, 0.03):
+            config = dataclasses.replace(TrackMotionConfig(), epipole_allowance=allowance)
+            flagged[allowance] = moving_tracks(pair_evidence(x1, x2, config, K).distance[:, None], config)
+        assert near.sum() > 30
+        assert flagged[0.0][near].mean() > 0.4 and not flagged[0.03][near].any()
+        assert flagged[0.03][mover].mean() > 0.9 and not flagged[0.03][~mover].any()
 
 
 class TestPairResiduals:
