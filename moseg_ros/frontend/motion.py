@@ -568,25 +568,32 @@ class MotionFrontEnd:
         if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
         moving = (evidence.residual > evidence.threshold) & evidence.valid
-        if self.config.min_texture > 0:
-            moving &= self._reliable(gray, backward)
+        reliable = self._reliable(gray, backward) if self.config.min_texture > 0 else None
+        if reliable is not None:
+            moving &= reliable
         if evidence.homography is None and (self.config.dense_cheir_px > 0 or self.config.dense_footing):
-            # Neither is gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
             limit = self._guessed_rotation_limit(self.config.dense_gap) if observation.guessed else np.inf
             parallax = dense_parallax(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                       inlier_px=self.config.dense_baseline.ransac_threshold_px, max_rotation_deg=limit)
             if parallax is not None:
-                moving |= self._against_parallax(parallax, evidence.valid, observation.guessed)
+                moving |= self._against_parallax(parallax, evidence.valid, observation.guessed, reliable)
         return moving
 
-    def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray, guessed: bool) -> np.ndarray:
-        """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``) or nearer than the
-        road under them (``dense_footing``)."""
+    def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray, guessed: bool,
+                          reliable: np.ndarray | None = None) -> np.ndarray:
+        """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``) or, of the
+        ``reliable`` ones (``_reliable``; None: all), nearer than the road under them (``dense_footing``)."""
         moving = np.zeros(valid.shape, dtype=bool)
         if self.config.dense_cheir_px > 0:
+            # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             moving |= behind_infinity(parallax, valid, self.config.track_motion,
                                       threshold_px=self.config.dense_cheir_px, guessed=guessed)
         near = (nearer_than_road(parallax, valid, self.config.track_motion, excess_px=self.config.dense_footing_px)
                 if self.config.dense_footing else None)
-        return moving if near is None else moving | near
+        if near is None:
+            return moving
+        # Gated as the residual is: on KITTI 07 the smooth panes of near parked cars' windows came out nearer than
+        # the road under them (README); an oncoming car's smooth body keeps its pixels near texture while its flow
+        # is small (``smooth_max_flow``).
+        return moving | (near if reliable is None else near & reliable)
