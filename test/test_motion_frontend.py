@@ -10,8 +10,8 @@ import numpy as np
 from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, carried, dense_near,
-                                      hull_mask, linked_groups, touching)
+from moseg_ros.frontend.motion import (NO_EVIDENCE, MotionFrontEnd, MotionFrontEndConfig, Observation, carried,
+                                      dense_near, hull_mask, linked_groups, remembered, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -167,6 +167,60 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
         dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
         assert dense[is_car].mean() > 0.9
+
+
+class TestRemembered:
+    """The moving evidence of the frames before, carried along the flow while fresh evidence drops out."""
+
+    SHAPE = (40, 60)
+
+    @classmethod
+    def _block(cls, x0: int) -> np.ndarray:
+        mask = np.zeros(cls.SHAPE, dtype=bool)
+        mask[10:20, x0:x0 + 10] = True
+        return mask
+
+    @classmethod
+    def _shift(cls, dx: float) -> np.ndarray:
+        """The backward flow (this frame -> the one before) of an image moved ``dx`` px right since then."""
+        flow = np.zeros((*cls.SHAPE, 2), dtype=np.float32)
+        flow[..., 0] = -dx
+        return flow
+
+    def test_shape_dtype_and_fresh_evidence_is_age_zero(self):
+        age = remembered(self._block(5), None, None, np.zeros((0, 2)), 1, 3)
+        assert age.shape == self.SHAPE and age.dtype == np.uint8
+        assert (age[self._block(5)] == 0).all() and (age[~self._block(5)] == NO_EVIDENCE).all()
+
+    def test_a_region_that_drops_out_is_carried_along_the_flow_for_the_frames_asked(self):
+        first = remembered(self._block(5), None, None, np.zeros((0, 2)), 2, 3)
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        second = remembered(nothing, first, self._shift(4), np.zeros((0, 2)), 2, 3)
+        assert (second[self._block(9)] == 1).all() and (second[~self._block(9)] == NO_EVIDENCE).all()
+        third = remembered(nothing, second, self._shift(4), np.zeros((0, 2)), 2, 3)
+        assert (third[self._block(13)] == 2).all()
+        assert (remembered(nothing, third, self._shift(4), np.zeros((0, 2)), 2, 3) == NO_EVIDENCE).all()
+
+    def test_fresh_evidence_restarts_the_age_and_no_memory_keeps_only_it(self):
+        first = remembered(self._block(5), None, None, np.zeros((0, 2)), 1, 3)
+        second = remembered(self._block(9), first, self._shift(4), np.zeros((0, 2)), 1, 3)
+        assert (second[self._block(9)] == 0).all()
+        off = remembered(np.zeros(self.SHAPE, dtype=bool), first, self._shift(4), np.zeros((0, 2)), 0, 3)
+        assert (off == NO_EVIDENCE).all()
+
+    def test_static_tracks_inside_stop_what_is_carried(self):
+        first = remembered(self._block(5), None, None, np.zeros((0, 2)), 1, 3)
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        static = np.array([[10.0, 12.0], [12.0, 15.0], [15.0, 18.0]])  # inside the carried block at x 9-18
+        assert (remembered(nothing, first, self._shift(4), static, 1, 3) == NO_EVIDENCE).all()
+        assert (remembered(nothing, first, self._shift(4), static[:2], 1, 3)[self._block(9)] == 1).all()
+        assert (remembered(nothing, first, self._shift(4), static, 1, 0)[self._block(9)] == 1).all()
+
+    def test_the_front_end_forgets_it_on_reset(self):
+        front_end = MotionFrontEnd(MotionFrontEndConfig(memory_frames=1))
+        front_end._memory = (0, np.zeros(self.SHAPE, dtype=np.uint8))
+        front_end.reset()
+        assert front_end._memory is None
 
 
 class TestDenseFooting:

@@ -36,8 +36,11 @@ The dense mask holds on for a frame where it goes on: of the last refit's dense 
 the regions that touch this refit's are kept (hysteresis, as in Canny's edges: a mover's residual flickers
 around the threshold from frame to frame, a lone blob of noise is not repeated).
 
-Both are drawn at ``dense_width``; their union, closed and opened, is split into connected regions of
-``min_region_area`` pixels or more, and the InstanceTracker gives them persistent ids.
+Both are drawn at ``dense_width``. Their union is remembered for ``memory_frames`` frames: evidence that
+drops out (a looming car's tracks and flow, a small fast mover's flicker) is carried along the backward flow,
+unless ``memory_veto`` tracks that lived through the window unflagged lie in what is carried. The result,
+closed and opened, is split into connected regions of ``min_region_area`` pixels or more, and the
+InstanceTracker gives them persistent ids.
 """
 
 from __future__ import annotations
@@ -129,6 +132,11 @@ class MotionFrontEndConfig:
     # The flow view around each hull (core/object_flow.py): grows smooth bodies, trims swallowed background.
     # None: hulls as drawn.
     object_flow: ObjectFlowConfig | None = field(default_factory=ObjectFlowConfig)
+    # Frames the moving evidence is remembered after it drops out (``remembered``). One bridges a lost frame;
+    # each more frame catches more of the synthetic looming and crossing cars and carries more false regions on
+    # real streets (README). 0: off.
+    memory_frames: int = 1
+    memory_veto: int = 3
 
 
 def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:
@@ -213,6 +221,33 @@ def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray]
         mask = cv2.remap(mask.astype(np.uint8), landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
     return mask
+
+
+NO_EVIDENCE = np.uint8(255)
+
+
+def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | None, settled: np.ndarray,
+               frames: int, veto: int) -> np.ndarray:
+    """(h, w) uint8 age of each pixel's moving evidence, in frames: 0 where ``fresh`` ((h, w) bool) holds it;
+    k <= ``frames`` where the frame before's ages ``before`` ((h, w) uint8, None: no such frame) held k - 1,
+    carried along ``flow`` ((h, w, 2), this frame -> the one before); NO_EVIDENCE elsewhere, and over each
+    carried region that is not fresh now and holds ``veto`` or more of the (S, 2) ``settled`` points (x, y:
+    static evidence; 0: no veto)."""
+    age = np.where(fresh, 0, NO_EVIDENCE).astype(np.uint8)
+    if frames <= 0 or before is None or flow is None or before.shape != fresh.shape:
+        return age
+    landing = pixel_grid(*flow.shape[:2]) + flow
+    carried = cv2.remap(before, landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=int(NO_EVIDENCE))
+    kept = (carried < frames) & ~fresh
+    if veto > 0 and len(settled) and kept.any():
+        count, labels = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
+        xy = np.clip(np.rint(settled).astype(np.int64), 0, [fresh.shape[1] - 1, fresh.shape[0] - 1])
+        vetoed = np.bincount(labels[xy[:, 1], xy[:, 0]], minlength=count) >= veto
+        vetoed[0] = False
+        kept &= ~vetoed[labels]
+    age[kept] = carried[kept] + 1
+    return age
 
 
 def touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
@@ -307,6 +342,8 @@ class MotionFrontEnd:
         self.reset_refit()
         self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
         self.moving = np.zeros((0, 0), dtype=bool)
+        # The last frame's evidence ages (``remembered``) and its index.
+        self._memory: tuple[int, np.ndarray] | None = None
 
     def reset_refit(self) -> None:
         """Forget the refit's state: the window's pair fits, the sticky flags and the last dense mask."""
@@ -409,8 +446,19 @@ class MotionFrontEnd:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
                 moving |= self._carried(refit.dense, refit.index)
+            moving = self._remembered(moving, self._points.points[settled] * scale)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
+
+    def _remembered(self, fresh: np.ndarray, settled: np.ndarray) -> np.ndarray:
+        """``fresh`` (h, w) bool with the evidence of the last ``memory_frames`` frames carried to this one
+        (``remembered``, with ``settled`` (S, 2) points at this size)."""
+        last = self._memory
+        before = last[1] if last is not None and last[0] == self._index - 1 else None
+        flow = self._backward[-1][1] if self._backward and self._backward[-1][0] == self._index else None
+        age = remembered(fresh, before, flow, settled, self.config.memory_frames, self.config.memory_veto)
+        self._memory = (self._index, age)
+        return age != NO_EVIDENCE
 
     def _refined(self, moving: np.ndarray, here: np.ndarray, group: np.ndarray, scale: float,
                  link_px: float) -> np.ndarray:
