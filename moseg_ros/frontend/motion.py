@@ -217,10 +217,16 @@ def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray]
     for frame, flow in backward:
         if frame <= index:
             continue
-        landing = pixel_grid(*flow.shape[:2]) + flow
-        mask = cv2.remap(mask.astype(np.uint8), landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
-                         borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0
+        mask = pulled_forward(mask.astype(np.uint8), flow, 0) > 0
     return mask
+
+
+def pulled_forward(image: np.ndarray, flow: np.ndarray, border: int) -> np.ndarray:
+    """(h, w) ``image`` of the frame before, at this frame: each pixel takes the value (nearest) where the (h, w, 2)
+    backward ``flow`` (this frame -> the one before) lands, ``border`` where it lands outside."""
+    landing = pixel_grid(*flow.shape[:2]) + flow
+    return cv2.remap(image, landing[..., 0], landing[..., 1], cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                     borderValue=border)
 
 
 NO_EVIDENCE = np.uint8(255)
@@ -236,9 +242,7 @@ def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | 
     age = np.where(fresh, 0, NO_EVIDENCE).astype(np.uint8)
     if frames <= 0 or before is None or flow is None or before.shape != fresh.shape:
         return age
-    landing = pixel_grid(*flow.shape[:2]) + flow
-    carried = cv2.remap(before, landing[..., 0], landing[..., 1], cv2.INTER_NEAREST,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=int(NO_EVIDENCE))
+    carried = pulled_forward(before, flow, int(NO_EVIDENCE))
     kept = (carried < frames) & ~fresh
     if veto > 0 and len(settled) and kept.any():
         count, labels = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
