@@ -12,6 +12,8 @@ empty mask with status ``failed: <reason>``; both restart the window.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -76,14 +78,25 @@ class PipelineConfig:
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
-    opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process (0: "
-                                  "OpenCV's own choice, the CPUs the process may run on)", low=0, high=1024)
+    opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "
+                                  "the pipeline runs (0: one when the refit runs on its background worker, so that "
+                                  "the frame path and the refit each keep a core of their own; otherwise OpenCV's "
+                                  "own choice, the CPUs the process may run on)", low=0, high=1024)
 
     def refit_mode(self, live: bool) -> str:
         """background or inline: what refit stands for in a live stream (the node) or offline (tools)."""
         if self.refit != "auto":
             return self.refit
         return "background" if live else "inline"
+
+    def opencv_thread_count(self) -> int:
+        """The threads OpenCV gets while the pipeline runs (0: OpenCV's own choice), for a config whose refit
+        is resolved (``refit_mode``). With a background refit OpenCV's parallel KLT and DIS on the frame path and
+        the refit's own thread would contend for the same cores of a small CPU; one thread each is as fast at
+        p95 on two cores and leaves the refit a core (README)."""
+        if self.opencv_threads > 0:
+            return self.opencv_threads
+        return 1 if self.refit == "background" else 0
 
     def dis_preset(self) -> str:
         """The DIS preset that flow_preset stands for (auto: by method)."""
@@ -145,6 +158,19 @@ def _stage_seconds(shell: dict[str, float], method: dict[str, float]) -> dict[st
     return {"prepare": shell["prepare"], **method, "method_other": other, "render": shell["render"]}
 
 
+@contextmanager
+def opencv_threads(count: int) -> Iterator[None]:
+    """OpenCV's thread count set to ``count`` (0: left as it is) inside the block, and set back after it (the
+    count is the whole process's)."""
+    before = cv2.getNumThreads()
+    if count > 0:
+        cv2.setNumThreads(count)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
 class Pipeline:
     """Streaming motion segmentation: the shell every method shares (checks, resets, resizing, masks, timing)."""
 
@@ -152,18 +178,20 @@ class Pipeline:
         """``live``: frames come from a camera (the node), so refit ``auto`` runs on a worker thread; offline
         (the tools) every frame waits for its own refit and the same frames always give the same masks."""
         config.validate()
-        if config.opencv_threads > 0:  # leaves cores to the SLAM system beside the node, or one per fleet task
-            cv2.setNumThreads(config.opencv_threads)
         self.config = replace(config, refit=config.refit_mode(live))
         self.method = METHOD_CLASSES[config.method](self.config)
         self._instance_model = TorchScriptInstances(config.instance_model) if config.instance_model else None
         self._last_stamp: int | None = None
         self._input_size: tuple[int, int] | None = None
         self.resets = 0
+        self._threads = ExitStack()
+        self._threads.enter_context(opencv_threads(self.config.opencv_thread_count()))
 
     def close(self) -> None:
-        """Stop the method's refit worker, if it has one (the pipeline takes no frames afterwards)."""
+        """Stop the method's refit worker, if it has one, and give OpenCV back the threads it had before (the
+        pipeline takes no frames afterwards)."""
         self.method.close()
+        self._threads.close()
 
     def __enter__(self) -> Pipeline:
         return self

@@ -195,11 +195,24 @@ def test_a_method_that_raises_gives_an_empty_mask_with_the_reason_and_restarts_t
 
 
 class TestOpenCVThreads:
-    def test_a_positive_setting_is_taken_as_is(self):
+    def test_a_positive_setting_is_taken_as_is_while_the_pipeline_runs(self):
         before = cv2.getNumThreads()
         try:
-            Pipeline(PipelineConfig(opencv_threads=3))
-            assert cv2.getNumThreads() == 3
+            with Pipeline(PipelineConfig(opencv_threads=3)):
+                assert cv2.getNumThreads() == 3
+            assert cv2.getNumThreads() == before
+        finally:
+            cv2.setNumThreads(before)
+
+    def test_zero_gives_opencv_one_thread_beside_a_background_refit_and_its_own_choice_inline(self):
+        before = cv2.getNumThreads()
+        try:
+            with Pipeline(PipelineConfig(), live=True) as live:
+                assert live.config.refit == "background"
+                assert cv2.getNumThreads() == 1
+            assert cv2.getNumThreads() == before
+            with Pipeline(PipelineConfig(refit="inline"), live=True):
+                assert cv2.getNumThreads() == before
         finally:
             cv2.setNumThreads(before)
 

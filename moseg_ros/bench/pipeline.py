@@ -28,7 +28,7 @@ from moseg_ros.io.bags import read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.io.image import to_gray
 from moseg_ros.params import add_settings_arguments, pipeline_config
-from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.pipeline import Pipeline, PipelineConfig, opencv_threads
 from moseg_ros.timing import sleep_until
 
 
@@ -38,7 +38,8 @@ def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
 
 def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()) -> np.ndarray:
     """Milliseconds per frame (after the first) of KLT tracking plus the DIS flow back to the frame before and
-    nothing else: what the front-end's frame path cannot do without.
+    nothing else: what the front-end's frame path cannot do without, with the OpenCV threads the pipeline of
+    ``config`` (its refit resolved) runs with.
 
     KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, guided by the
     dense flow and its backward check shared with it as the front-end does; flow: the DIS preset the method
@@ -55,10 +56,11 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     tracking = [resized_to_width(g, config.track_width) for g in grays]
     dense = [resized_to_width(g, config.working_width) for g in grays]
     ms = []
-    for i in range(len(frames)):
-        start = time.perf_counter()
-        tracks.update(tracking[i], flow(dense[i], dense[i - 1]) if i else None, dense[i])
-        ms.append((time.perf_counter() - start) * 1e3)
+    with opencv_threads(config.opencv_thread_count()):
+        for i in range(len(frames)):
+            start = time.perf_counter()
+            tracks.update(tracking[i], flow(dense[i], dense[i - 1]) if i else None, dense[i])
+            ms.append((time.perf_counter() - start) * 1e3)
     return np.array(ms[1:])
 
 
@@ -93,7 +95,7 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
     for result in results[1:]:
         for name, seconds in result.stages.items():
             stages.setdefault(name, []).append(seconds * 1e3)
-    floor = floor_ms(frames, config)
+    floor = floor_ms(frames, pipeline.config)
     return {**_refit_numbers(results, pipeline.config.refit), "rate_hz": float(rate),
             "frames": len(ms), "width": int(frames[0].shape[1]), "height": int(frames[0].shape[0]),
             "ms_mean": float(ms.mean()), **_percentiles(ms, "ms_"), "ms_max": float(ms.max()),
