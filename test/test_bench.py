@@ -4,6 +4,7 @@ import json
 import time
 
 import numpy as np
+import pytest
 
 from moseg_ros.cli import main
 
@@ -78,7 +79,7 @@ def test_memory_slope_and_process_sample():
 def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path, capsys):
     out = tmp_path / "soak.json"
     code = main(["bench", "soak", str(textured_bag), "--rate", "5", "--seconds", "4", "--domain", str(ros_domain),
-                 "--set", "queue_size=2", "--json", str(out)])
+                 "--set", "queue_size=2", "--set", "refit_wait_ms=20", "--json", str(out)])
     report = json.loads(out.read_text())
     assert code == 0, report
     assert report["frames"] == 20 and 0 < report["masks"] <= 20
@@ -89,6 +90,17 @@ def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path,
     assert report["rss_mb_start"] > 10 and report["rss_mb_end"] > 10 and report["cpu_percent"] > 0
     assert report["rss_mb_by_minute"] == [round(report["rss_mb_start"], 1)]  # a 4 s run: its start only
     assert main(["bench", "soak", str(textured_bag), "--set", "nope=1"]) == 2
+
+
+def test_soak_writes_each_setting_as_ros_reads_its_type_back():
+    from moseg_ros.bench.soak import _node_params
+
+    assert _node_params(["refit_wait_ms=100", "queue_size=2", "ground_contact=True", "refit=inline"]) == [
+        "refit_wait_ms:=100.0", "queue_size:=2", "ground_contact:=true", "refit:=inline"]
+    with pytest.raises(ValueError, match="queue_size must be a int"):
+        _node_params(["queue_size=two"])
+    with pytest.raises(ValueError, match="refit_wait_ms -5.0 must be within"):
+        _node_params(["refit_wait_ms=-5"])
 
 
 def test_pipeline_bench_paces_frames_at_a_camera_rate(textured_bag, capsys, monkeypatch):

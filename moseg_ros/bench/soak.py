@@ -208,15 +208,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _node_params(assignments: list[str]) -> list[str]:
-    names = {entry.name for entry in all_settings()}
+    """``name:=value`` for the node from ``--set`` NAME=VALUE, each value parsed and checked in its setting's
+    type and written as ROS reads that type back (``100`` for a float setting is ``100.0``: ROS would read an
+    integer, and the node refuses an integer for a double parameter)."""
+    settings = {entry.name: entry for entry in all_settings()}
     params = []
     for assignment in assignments:
-        name, sep, value = assignment.partition("=")
-        if not sep or name not in names:
+        name, sep, text = assignment.partition("=")
+        if not sep or name not in settings:
             raise ValueError(f"--set {assignment!r}: expected NAME=VALUE with NAME one of the node's parameters "
-                             f"({', '.join(sorted(names))})")
-        params.append(f"{name}:={value}")
+                             f"({', '.join(sorted(settings))})")
+        value = settings[name].parse(text)
+        settings[name].check(value)
+        params.append(f"{name}:={ros_text(value)}")
     return params
+
+
+def ros_text(value: bool | int | float | str) -> str:
+    """``value`` as a ROS ``-p name:=value`` argument reads it back in the same type."""
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, float):
+        return repr(value)
+    return str(value)
 
 
 def run(args: argparse.Namespace) -> int:
