@@ -78,6 +78,10 @@ class PipelineConfig:
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
+    refit_wait_ms: float = setting(0.0, "moving_objects: how long a frame may wait for the background refit of its "
+                                   "own observation before it takes the newest refit done (0: never waits, the "
+                                   "lowest latency, decisions a frame or more old; a camera at 10 Hz leaves time to "
+                                   "wait, and the masks are then those of the offline tools)", low=0.0, high=1000.0)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "
                                   "the pipeline runs (0: one when the refit runs on its background worker, so that "
                                   "the frame path and the refit each keep a core of their own; otherwise OpenCV's "

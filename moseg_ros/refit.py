@@ -1,14 +1,14 @@
 """The refit stage off the frame path: motion models fitted on a worker thread of their own.
 
-The frame path (decode, track, flow, render) submits what the fit needs from each frame and goes on with
-the newest fit that is done; it never waits for one. The worker fits the newest submission only: a newer
-one replaces a waiting one (the slot holds one, so memory stays bounded), which is what a stream wants when
-fitting is slower than the camera. NumPy and OpenCV release the GIL, so on two cores the fit runs beside
-the frame path. With ``nice`` the worker thread runs at a lower OS priority than the frame path: on a CPU
-too small for both (one core), frames keep their pace and the fits take the time left between them, so they
-come less often instead of making every frame late. With ``duty`` below 1 the worker rests after each fit, so
-that it fits at most that share of the time: on two cores, a worker fitting back to back takes the second
-core that OpenCV's flow and tracking use on the frame path; resting gives it back, for older decisions.
+The frame path (decode, track, flow, render) submits what the fit needs from each frame and goes on with the
+newest fit that is done; it never waits for one, unless it asks to (``wait_for``, bounded). The worker fits the
+newest submission only: a newer one replaces a waiting one (the slot holds one, so memory stays bounded), which
+is what a stream wants when fitting is slower than the camera. NumPy and OpenCV release the GIL, so on two cores
+the fit runs beside the frame path. With ``nice`` the worker thread runs at a lower OS priority than the frame
+path: on a CPU too small for both (one core), frames keep their pace and the fits take the time left between
+them, so they come less often instead of making every frame late. With ``duty`` below 1 the worker rests after
+each fit, so that it fits at most that share of the time: on two cores, a worker fitting back to back takes the
+second core that OpenCV's flow and tracking use on the frame path; resting gives it back, for older decisions.
 """
 
 from __future__ import annotations
@@ -71,6 +71,13 @@ class BackgroundRefit(Generic[Observation, Result]):
         """The newest finished fit (None before the first)."""
         with self._cond:
             return self._result
+
+    def wait_for(self, accept: Callable[[Result], bool], timeout: float) -> bool:
+        """Block until the newest finished fit is one that ``accept`` takes, or a fit raised, for at most
+        ``timeout`` seconds; False on timeout (``latest`` and ``take_error`` then say what there is)."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self.error is not None or (self._result is not None and accept(self._result)), timeout)
 
     def take_error(self) -> BaseException | None:
         """The error of a fit that raised since the last call, once (see ``error``: raise a new exception

@@ -139,6 +139,36 @@ class TestBackgroundRefit:
         finally:
             worker.stop()
 
+    def test_wait_for_returns_once_an_accepted_fit_is_done(self) -> None:
+        gate = threading.Event()
+
+        def fit(value: int) -> int:
+            gate.wait(5)
+            return value
+
+        worker = BackgroundRefit(fit)
+        try:
+            worker.submit(1)
+            assert not worker.wait_for(lambda result: result >= 1, 0.05)  # the fit is held at the gate
+            gate.set()
+            assert worker.wait_for(lambda result: result >= 1, 5) and worker.latest() == 1
+            worker.submit(2)
+            assert worker.wait_for(lambda result: result >= 2, 5) and worker.latest() == 2
+        finally:
+            worker.stop()
+
+    def test_wait_for_ends_on_an_error(self) -> None:
+        def fit(value: int) -> int:
+            raise ArithmeticError("no fit")
+
+        worker = BackgroundRefit(fit)
+        try:
+            worker.submit(1)
+            assert worker.wait_for(lambda result: True, 5)
+            assert isinstance(worker.take_error(), ArithmeticError) and worker.latest() is None
+        finally:
+            worker.stop()
+
 
 def _slow_refit(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
     original = MotionFrontEnd.refit
@@ -196,6 +226,35 @@ class TestPipelineWithBackgroundRefit:
         overlap = [np.logical_and(a, b).sum() / max(np.logical_or(a, b).sum(), 1)
                    for a, b in zip(masks["inline"][8:], masks["background"][8:])]
         assert np.mean(overlap) > 0.7
+
+    def test_frames_that_wait_for_their_own_refit_get_the_inline_masks(self) -> None:
+        frames = textured_frames(12)
+        inline = Pipeline(PipelineConfig(refit="inline"))
+        waiting = Pipeline(PipelineConfig(refit="background", refit_wait_ms=1000.0))
+        try:
+            runs = {name: [pipeline.process(frame, 1_000 + i * 100_000_000) for i, frame in enumerate(frames)]
+                    for name, pipeline in (("inline", inline), ("waiting", waiting))}
+        finally:
+            waiting.close()
+        assert {r.refit_age for r in runs["waiting"][1:]} == {0}
+        for a, b in zip(runs["inline"], runs["waiting"]):
+            assert np.array_equal(a.masks.dynamic, b.masks.dynamic)
+        assert any(r.masks.dynamic.any() for r in runs["waiting"])
+
+    def test_a_frame_waits_no_longer_than_asked(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Refits take 0.3 s, frames come at 10 Hz and each waits at most 20 ms for its own refit: they go on
+        with older refits (a frame that waited for its own would have age 0)."""
+        _slow_refit(monkeypatch, 0.3)
+        pipeline = Pipeline(PipelineConfig(refit="background", refit_wait_ms=20.0))
+        results = []
+        try:
+            for i, frame in enumerate(textured_frames(12)):
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
+                time.sleep(0.1)
+        finally:
+            pipeline.close()
+        ages = [r.refit_age for r in results if r.refit_age is not None]
+        assert ages and min(ages) >= 1 and max(ages) >= 2
 
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
         original = MotionFrontEnd.refit

@@ -10,8 +10,9 @@ instead, and an instance moves when ``instance_min_fraction`` of its pixels hold
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
 done, whose moving tracks are drawn where they are now and whose dense mask is carried along the flow;
-``Decision.refit_age`` says how many frames old that refit is. "inline" refits every frame on the frame
-path (deterministic: the offline tools).
+``Decision.refit_age`` says how many frames old that refit is; with ``refit_wait_ms`` a frame waits that long
+at most for the refit of its own observation (age 0 when it comes in time). "inline" refits every frame on the
+frame path (deterministic: the offline tools).
 """
 
 from __future__ import annotations
@@ -96,14 +97,21 @@ class MovingObjects:
         return decision
 
     def _refit(self, observation: Observation) -> Refit | None:
-        """This frame's refit (inline), or the newest one the worker has done (background)."""
+        """This frame's refit (inline), or the newest one the worker has done (background), after waiting up to
+        ``refit_wait_ms`` for this frame's own."""
         if self._worker is None:
             return self._front_end.refit(observation)
+        self._raise_refit_error()
+        self._worker.submit(observation)
+        if self.config.refit_wait_ms > 0:
+            self._worker.wait_for(lambda refit: refit.index >= observation.index, self.config.refit_wait_ms / 1e3)
+            self._raise_refit_error()
+        return self._worker.latest()
+
+    def _raise_refit_error(self) -> None:
         error = self._worker.take_error()
         if error is not None:
             raise RefitError.of(error)
-        self._worker.submit(observation)
-        return self._worker.latest()
 
     def _decide_instances(self, instances: np.ndarray, first: bool) -> Decision:
         if first:
