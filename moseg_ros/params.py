@@ -149,6 +149,23 @@ def add_settings_arguments(parser: argparse.ArgumentParser, method: bool = True)
                         help="override one pipeline setting, e.g. --set method=epipolar_baseline (repeatable)")
 
 
+def add_live_argument(parser: argparse.ArgumentParser) -> None:
+    """``--live HZ``: run the pipeline as the node does (refit ``auto`` on its background worker) with the frames
+    paced at a camera's rate, so that what is scored is what the node would publish at that rate."""
+    parser.add_argument("--live", type=_rate, default=0.0, metavar="HZ",
+                        help="score what the node would publish at a camera of HZ frames a second: the refit on "
+                             "its background worker, frames paced (default 0: offline, each frame waits for its "
+                             "own refit)")
+
+
+def _rate(text: str) -> float:
+    """argparse type: frames a second, >= 0."""
+    value = float(text)
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0 frames a second, got {text}")
+    return value
+
+
 def pipeline_config(args: argparse.Namespace) -> Any:
     """The PipelineConfig of a tool's ``--params``, then ``--method``, then ``--set``.
 

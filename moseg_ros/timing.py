@@ -35,3 +35,22 @@ def sleep_until(moment: float) -> None:
     delay = moment - time.monotonic()
     if delay > 0:
         time.sleep(delay)
+
+
+class Pacer:
+    """Frames at a camera's pace: ``wait()`` before each frame sleeps until that frame's time, ``rate`` frames a
+    second from the first call on (0: back to back, never sleeps)."""
+
+    def __init__(self, rate: float) -> None:
+        if rate < 0:
+            raise ValueError(f"rate must be >= 0 frames a second, got {rate}")
+        self.period = 1.0 / rate if rate > 0 else 0.0
+        self._start: float | None = None
+        self._frames = 0
+
+    def wait(self) -> None:
+        """Sleep until the next frame is due (at once when it is late or the pace is back to back)."""
+        if self._start is None:
+            self._start = time.monotonic()
+        sleep_until(self._start + self._frames * self.period)
+        self._frames += 1

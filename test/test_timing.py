@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import time
 
-from moseg_ros.timing import Stages, sleep_until
+import pytest
+
+import moseg_ros.timing as timing
+from moseg_ros.timing import Pacer, Stages, sleep_until
 
 
 class TestStages:
@@ -28,3 +31,51 @@ class TestSleepUntil:
         start = time.monotonic()
         sleep_until(start - 10.0)
         assert time.monotonic() - start < 5.0  # not the 10 s a sign error would wait, on any busy machine
+
+
+class FakeClock:
+    """time.monotonic and time.sleep on a clock that only sleeping moves; records each sleep."""
+
+    def __init__(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        self.now = 100.0
+        self.sleeps: list[float] = []
+        monkeypatch.setattr(timing.time, "monotonic", lambda: self.now)
+        monkeypatch.setattr(timing.time, "sleep", self.sleep)
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+class TestPacer:
+    def test_frames_come_at_the_rate_from_the_first_on(self, monkeypatch):
+        clock = FakeClock(monkeypatch)
+        pacer = Pacer(10.0)
+        due = []
+        for work in (0.0, 0.03, 0.02):
+            pacer.wait()
+            due.append(round(clock.now - 100.0, 6))
+            clock.now += work  # the frame's processing
+        assert due == [0.0, 0.1, 0.2]
+
+    def test_a_late_frame_starts_at_once_and_the_next_keeps_to_the_schedule(self, monkeypatch):
+        clock = FakeClock(monkeypatch)
+        pacer = Pacer(10.0)
+        pacer.wait()
+        clock.now += 0.25  # a frame that took two and a half periods
+        pacer.wait()
+        pacer.wait()
+        assert clock.sleeps == []  # frames 1 and 2 were due at 0.1 and 0.2, and it is 0.25
+        pacer.wait()
+        assert round(clock.now - 100.0, 6) == 0.3  # frame 3 waits for its own time
+
+    def test_back_to_back_never_sleeps(self, monkeypatch):
+        clock = FakeClock(monkeypatch)
+        pacer = Pacer(0.0)
+        for _ in range(3):
+            pacer.wait()
+        assert clock.sleeps == []
+
+    def test_a_negative_rate_is_refused(self):
+        with pytest.raises(ValueError, match="rate must be >= 0"):
+            Pacer(-1.0)

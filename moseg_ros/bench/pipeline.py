@@ -29,7 +29,7 @@ from moseg_ros.io.frames import decode_frame
 from moseg_ros.io.image import to_gray
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig, opencv_threads
-from moseg_ros.timing import sleep_until
+from moseg_ros.timing import Pacer
 
 
 def _percentiles(ms: np.ndarray, prefix: str = "") -> dict[str, float]:
@@ -81,12 +81,11 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
         rate_hz (0: back to back).
     """
     maps = instances if instances is not None else [None] * len(frames)
-    period = 1.0 / rate if rate > 0 else 0.0
+    pacer = Pacer(rate)
     results = []
     with Pipeline(config, live=True) as pipeline:
-        start = time.monotonic()
         for i, (frame, labels) in enumerate(zip(frames, maps)):
-            sleep_until(start + i * period)
+            pacer.wait()
             results.append(pipeline.process(frame, i * 100_000_000, labels))
     ms = np.array([r.seconds for r in results[1:]]) * 1e3  # the first frame only fills the window
     stages: dict[str, list[float]] = {}

@@ -28,8 +28,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.masks import mask_iou
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.timing import Pacer
 
 FRAME_PERIOD_NS = 1_000_000_000 / 30  # DAVIS clips are 30 fps video
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
@@ -106,18 +107,21 @@ def pooled_ratio(numerator: int, denominator: int) -> float:
 
 
 def score_clip(name: str, images: list[Path], annotations: list[Path | None],
-               config: PipelineConfig) -> ClipScore | None:
+               config: PipelineConfig, live: float = 0.0) -> ClipScore | None:
     """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it;
-    None when no frame can be read."""
+    None when no frame can be read. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0:
+    offline)."""
     ious, seconds, unreadable = [], [], []
     tp = fp = fn = 0
-    with Pipeline(config) as pipeline:
+    pacer = Pacer(live)
+    with Pipeline(config, live=live > 0) as pipeline:
         for t, (image, annotation) in enumerate(zip(images, annotations)):
             try:
                 frame = read_rgb(image)
             except ValueError:
                 unreadable.append(image.name)
                 continue
+            pacer.wait()
             result = pipeline.process(frame, round(t * FRAME_PERIOD_NS))
             seconds.append(result.seconds)
             if t == 0 or annotation is None:
@@ -144,14 +148,15 @@ def score_clip(name: str, images: list[Path], annotations: list[Path | None],
         ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"), unreadable=unreadable)
 
 
-def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None) -> tuple[list[ClipScore], list[str]]:
-    """Score every clip of ``root`` that has readable frames and annotations; returns the scores and the skipped
-    clips."""
+def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None,
+             live: float = 0.0) -> tuple[list[ClipScore], list[str]]:
+    """Score every clip of ``root`` that has readable frames and annotations (``live``: see ``score_clip``);
+    returns the scores and the skipped clips."""
     scores, skipped = [], []
     for name in clip_names(root):
         images = files_with_suffix(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
         annotations = files_with_suffix(root / "Annotations" / RESOLUTION / name, (".png",))
-        score = (score_clip(name, images, pair_annotations(images, annotations), config)
+        score = (score_clip(name, images, pair_annotations(images, annotations), config, live)
                  if images and annotations else None)
         if score is None:
             skipped.append(name)
@@ -187,6 +192,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of `moseg eval davis`."""
     parser.add_argument("dir", type=Path, help="DAVIS-2016 folder (JPEGImages/480p/<clip>/, Annotations/480p/<clip>/)")
     add_settings_arguments(parser)
+    add_live_argument(parser)
     parser.add_argument("--max-frames", type=positive_int, default=None,
                         help="process at most this many frames per clip (default: all)")
     parser.add_argument("--json", type=Path, help="also write the per-clip rows and the means to this file")
@@ -199,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     config = pipeline_config(args)
     with threadpool_limits(1):
-        scores, skipped = evaluate(args.dir, config, args.max_frames)
+        scores, skipped = evaluate(args.dir, config, args.max_frames, args.live)
     if not scores:
         print(f"no DAVIS clip under {args.dir} has both frames and annotations "
               f"(Annotations/{RESOLUTION}/<clip>/*.png); skipped: {', '.join(skipped)}")
@@ -220,6 +226,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
     if args.json:
         report = {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
-                  "config": asdict(config)}
+                  "config": asdict(config), "live_hz": args.live}
         args.json.write_text(json.dumps(report, indent=2) + "\n")
     return 0

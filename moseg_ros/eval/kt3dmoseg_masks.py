@@ -25,8 +25,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.timing import Pacer
 
 FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
 
@@ -90,18 +91,21 @@ def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.nda
     return int(present.sum()), int((present & (2 * inside >= points)).sum())
 
 
-def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> ClipMaskScore | None:
+def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
+               live: float = 0.0) -> ClipMaskScore | None:
     """Run the pipeline over the clip's frames and score its masks at the labelled points; None when no frame
-    can be read."""
+    can be read. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline)."""
     n = min(len(frame_paths), clip.visible.shape[1])
     masks: list[np.ndarray | None] = []
     seconds = []
-    with Pipeline(config) as pipeline:
+    pacer = Pacer(live)
+    with Pipeline(config, live=live > 0) as pipeline:
         for t in range(n):
             frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
             if frame is None:
                 masks.append(None)
                 continue
+            pacer.wait()
             result = pipeline.process(frame, t * FRAME_PERIOD_NS)
             masks.append(result.masks.dynamic)
             seconds.append(result.seconds)
@@ -126,15 +130,16 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig) -> C
         unreadable=[frame_paths[t].name for t in np.flatnonzero(unread)])
 
 
-def evaluate(root: Path, config: PipelineConfig = PipelineConfig()) -> tuple[list[ClipMaskScore], list[str]]:
-    """Score every clip of ``root`` that has frames; returns the scores and the names of clips without a readable
-    frame."""
+def evaluate(root: Path, config: PipelineConfig = PipelineConfig(),
+             live: float = 0.0) -> tuple[list[ClipMaskScore], list[str]]:
+    """Score every clip of ``root`` that has frames (``live``: see ``score_clip``); returns the scores and the
+    names of clips without a readable frame."""
     scores, without = [], []
     for path in find_clips(root):
         clip = load_clip(path)
         folder = frames_folder(root, clip.name)
         frame_paths = sorted(folder.glob("*.png")) if folder else []
-        score = score_clip(clip, frame_paths, config) if frame_paths else None
+        score = score_clip(clip, frame_paths, config, live) if frame_paths else None
         if score is None:
             without.append(clip.name)
         else:
@@ -163,6 +168,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="KT3DMoSeg folder (Data/*.mat and OriginalSequences/); default ../shared/data/kt3dmoseg")
     parser.add_argument("--json", type=Path, help="also write the per-clip rows and means to this file")
     add_settings_arguments(parser)
+    add_live_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -173,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     config = pipeline_config(args)
     with threadpool_limits(1):
-        scores, without = evaluate(root, config)
+        scores, without = evaluate(root, config, args.live)
     if not scores:
         print(f"no KT3DMoSeg clip under {root} has readable frames (OriginalSequences/<clip>/*.png); "
               f"skipped: {', '.join(without)}")
@@ -200,5 +206,6 @@ def run(args: argparse.Namespace) -> int:
         if s.unreadable:
             print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
     if args.json:
-        args.json.write_text(json.dumps({**means, **totals, "clips": [asdict(s) for s in scores]}, indent=2) + "\n")
+        args.json.write_text(json.dumps({**means, **totals, "live_hz": args.live, "clips": [asdict(s) for s in scores]},
+                                        indent=2) + "\n")
     return 0

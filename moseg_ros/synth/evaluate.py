@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
 from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
+from moseg_ros.timing import Pacer
 
 # Every preset but map, which is the default's movers at half the camera speed (made for SfM, not a new case).
 EVAL_PRESETS = tuple(name for name in PRESETS if name != "map")
@@ -36,18 +37,21 @@ def kitti_height(width: int) -> int:
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
                 min_area: int = 60, skip: int = 3, instances: bool = True,
-                cover: float = 0.5) -> dict[str, dict[str, int | bool]]:
+                cover: float = 0.5, live: float = 0.0) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
     The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
     id among the dynamic ids); otherwise flagged = at least ``cover`` of the object's pixels in the mask.
+    ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline).
     """
     height = kitti_height(width)
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
-    with Pipeline(config) as pipeline:
+    pacer = Pacer(live)
+    with Pipeline(config, live=live > 0) as pipeline:
         for t, frame in enumerate(sequence.frames):
+            pacer.wait()
             result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None)
             if t < skip:
                 continue
@@ -101,6 +105,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cover", type=float, default=0.5,
                         help="without --instances: share of an object's pixels in the mask that flags it")
     add_settings_arguments(parser)  # e.g. --set flow_preset=fast, --set ground_contact=false
+    add_live_argument(parser)
     parser.add_argument("--min-area", type=int, default=60, help="smallest object counted (pixels)")
     parser.add_argument("--skip", type=int, default=3, help="first frames not counted (no evidence yet)")
     parser.add_argument("--json", type=Path, help="write the per-scene rows and the totals here")
@@ -125,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
         for seed in range(args.seeds):
             scene = score_scene(preset, seed, config, n_frames=args.frames, width=args.width,
                                 min_area=args.min_area, skip=args.skip, cover=args.cover,
-                                instances=args.instances or config.method == "object_level")
+                                instances=args.instances or config.method == "object_level", live=args.live)
             scenes.append(scene)
             rows.append({"preset": preset, "seed": seed, "objects": scene})
             print(f"{preset:10s} {seed:2d}  " + " ".join(
@@ -139,5 +144,6 @@ def run(args: argparse.Namespace) -> int:
           f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
           f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
     if args.json:
-        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows}, indent=2))
+        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live},
+                                        indent=2))
     return 0
