@@ -61,6 +61,17 @@ def test_scores_synthetic_clips_of_any_names_and_lists_a_clip_without_annotation
     assert "block-b" in printed and "mean over 2 clips" in printed and "skipped" in printed and "no-gt" in printed
 
 
+def test_live_frames_that_wait_for_their_own_refit_score_as_offline(tmp_path):
+    root = tmp_path / "davis"
+    _write_clip(root, "block", [f"{i:02d}.jpg" for i in range(8)], [f"{i:02d}.png" for i in range(8)], seed=0)
+    runs = {}
+    for name, extra in (("offline", []), ("live", ["--live", "20", "--set", "refit_wait_ms=1000"])):
+        assert moseg(["eval", "davis", str(root), "--json", str(tmp_path / f"{name}.json"), *extra]) == 0
+        runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
+    assert runs["live"]["live_hz"] == 20.0 and runs["live"]["config"]["refit_wait_ms"] == 1000.0
+    assert runs["live"]["mean_j"] == runs["offline"]["mean_j"] > 0.3
+
+
 def test_unreadable_frames_and_annotations_are_skipped_and_listed(tmp_path, capsys):
     root = tmp_path / "davis"
     names = [f"{i:05d}" for i in range(6)]
