@@ -227,6 +227,20 @@ class TestPipelineWithBackgroundRefit:
                    for a, b in zip(masks["inline"][8:], masks["background"][8:])]
         assert np.mean(overlap) > 0.7
 
+    def test_the_first_decision_waits_for_its_own_refit_and_no_later_one_does(
+            self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Refits take 0.2 s and frames come back to back: the second frame (the first with a decision) gets its
+        own refit; the frames after it go on with older ones."""
+        _slow_refit(monkeypatch, 0.2)
+        pipeline = Pipeline(PipelineConfig(), live=True)
+        try:
+            results = [pipeline.process(frame, 1_000 + i * 100_000_000) for i, frame in enumerate(textured_frames(6))]
+        finally:
+            pipeline.close()
+        assert results[0].kind is Status.WARMUP and results[0].refit_age is None
+        assert results[1].refit_age == 0
+        assert min(r.refit_age for r in results[2:]) >= 1
+
     def test_frames_that_wait_for_their_own_refit_get_the_inline_masks(self) -> None:
         frames = textured_frames(12)
         inline = Pipeline(PipelineConfig(refit="inline"))
@@ -254,7 +268,8 @@ class TestPipelineWithBackgroundRefit:
         finally:
             pipeline.close()
         ages = [r.refit_age for r in results if r.refit_age is not None]
-        assert ages and min(ages) >= 1 and max(ages) >= 2
+        assert ages[0] == 0  # the stream's first decision waits for its own refit, whatever the setting
+        assert min(ages[1:]) >= 1 and max(ages) >= 2
 
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
         original = MotionFrontEnd.refit

@@ -1,18 +1,19 @@
 """``moving_objects`` (the default): finds the moving objects itself, with no weights and no instances.
 
-The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave
-the camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex
-hulls, united with the dense flow's epipolar residual and cheirality at the working resolution; regions
-keep their ids over time. The cheirality tests use camera_info's K when it comes, a guessed one otherwise.
-Every region the front-end reports is flagged as moving. With upstream instances, they are the objects
-instead, and an instance moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
+The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave the
+camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex hulls,
+united with the dense flow's epipolar residual and cheirality at the working resolution; regions keep their ids
+over time. The cheirality tests use camera_info's K when it comes, a guessed one otherwise. Every region the
+front-end reports is flagged as moving. With upstream instances, they are the objects instead, and an instance
+moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
 done, whose moving tracks are drawn where they are now and whose dense mask is carried along the flow;
-``Decision.refit_age`` says how many frames old that refit is; with ``refit_wait_ms`` a frame waits that long
-at most for the refit of its own observation (age 0 when it comes in time). "inline" refits every frame on the
-frame path (deterministic: the offline tools).
+``Decision.refit_age`` says how many frames old that refit is; with ``refit_wait_ms`` a frame waits that long at
+most for the refit of its own observation (age 0 when it comes in time). The stream's first decision (the second
+frame after a start or a reset) always waits for its own refit: before it there is nothing to apply. "inline"
+refits every frame on the frame path (deterministic: the offline tools).
 """
 
 from __future__ import annotations
@@ -32,6 +33,11 @@ from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
     from moseg_ros.pipeline import PipelineConfig
+
+
+# The longest the stream's first decision waits for its refit (about 35 ms on KITTI frames on two cores; a
+# worker that takes longer leaves that frame empty, as before any refit).
+FIRST_REFIT_WAIT_S = 1.0
 
 
 def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
@@ -102,9 +108,15 @@ class MovingObjects:
         if self._worker is None:
             return self._front_end.refit(observation)
         self._raise_refit_error()
+        latest = self._worker.latest()
         self._worker.submit(observation)
-        if self.config.refit_wait_ms > 0:
-            self._worker.wait_for(lambda refit: refit.index >= observation.index, self.config.refit_wait_ms / 1e3)
+        wait = self.config.refit_wait_ms / 1e3
+        if observation.index > 0 and (latest is None or latest.index == 0):
+            # Until a refit of two frames is done there is nothing to apply but an empty mask: the stream's first
+            # decision (after a start or a reset) waits for its own refit, once.
+            wait = max(wait, FIRST_REFIT_WAIT_S)
+        if wait > 0:
+            self._worker.wait_for(lambda refit: refit.index >= observation.index, wait)
             self._raise_refit_error()
         return self._worker.latest()
 
