@@ -305,6 +305,26 @@ class TestCarried:
         mask = np.eye(8, dtype=bool)
         assert np.array_equal(carried(mask, 3, ((2, np.ones((8, 8, 2), np.float32)),)), mask)
 
+    def test_a_refit_applied_frame_after_frame_is_carried_as_from_its_own_frame(self):
+        """The front-end carries the last frame's carried mask one flow on; applying the refit only at the last
+        frame warps it from its own frame: both give the same mask (no memory, so nothing else differs)."""
+        frames = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in textured_frames(8)]
+
+        def moving_at_the_end(every_frame: bool) -> np.ndarray:
+            front_end = MotionFrontEnd(MotionFrontEndConfig(memory_frames=0))
+            refit = None
+            for i, frame in enumerate(frames):
+                observation = front_end.observe(frame)
+                if i == 3:
+                    refit = front_end.refit(observation)
+                    assert refit.dense is not None and refit.dense.any()
+                if refit is not None and (every_frame or i == len(frames) - 1):
+                    front_end.apply(refit)
+            return front_end.moving
+
+        stepwise = moving_at_the_end(True)
+        assert stepwise.any() and np.array_equal(stepwise, moving_at_the_end(False))
+
 
 class TestTouching:
     def test_only_the_regions_a_seed_touches(self):

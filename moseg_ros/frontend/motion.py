@@ -348,6 +348,8 @@ class MotionFrontEnd:
         self.moving = np.zeros((0, 0), dtype=bool)
         # The last frame's evidence ages (``remembered``) and its index.
         self._memory: tuple[int, np.ndarray] | None = None
+        # The refit dense mask the last frame applied: (refit's frame, the frame it was carried to, the mask there).
+        self._carry: tuple[int, int, np.ndarray] | None = None
 
     def reset_refit(self) -> None:
         """Forget the refit's state: the window's pair fits, the sticky flags and the last dense mask."""
@@ -481,8 +483,17 @@ class MotionFrontEnd:
                               of_track[now], link_px, self.config.object_flow)
 
     def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
-        """``mask`` of frame ``index`` warped to the current frame along the backward flows since."""
-        return carried(mask, index, tuple(self._backward))
+        """``mask`` of frame ``index`` warped to the current frame along the backward flows since: one warp a
+        frame while the same refit is applied frame after frame (the last frame's carried mask goes one flow on,
+        the same steps as warping from ``index`` each time)."""
+        last = self._carry
+        if (last is not None and last[:2] == (index, self._index - 1) and self._backward
+                and self._backward[-1][0] == self._index):
+            here = carried(last[2], self._index - 1, (self._backward[-1],))
+        else:
+            here = carried(mask, index, tuple(self._backward))
+        self._carry = (index, self._index, here)
+        return here
 
     def _held(self, dense: np.ndarray, observation: Observation) -> np.ndarray:
         """``dense`` with the regions of the last refit's dense mask, carried to this frame, that touch it
