@@ -80,8 +80,9 @@ class PipelineConfig:
                                 low=0.05, high=1.0)
     refit_wait_ms: float = setting(0.0, "moving_objects: how long a frame may wait for the background refit of its "
                                    "own observation before it takes the newest refit done (0: never waits, the "
-                                   "lowest latency, decisions a frame or more old; a camera at 10 Hz leaves time to "
-                                   "wait, and the masks are then those of the offline tools)", low=0.0, high=1000.0)
+                                   "lowest latency, decisions a frame or more old; only the stream's first decision "
+                                   "always waits for its own; a camera at 10 Hz leaves time to wait, and the masks "
+                                   "are then those of the offline tools)", low=0.0, high=1000.0)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "
                                   "the pipeline runs (0: one when the refit runs on its background worker, so that "
                                   "the frame path and the refit each keep a core of their own; otherwise OpenCV's "
