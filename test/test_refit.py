@@ -241,6 +241,35 @@ class TestPipelineWithBackgroundRefit:
         assert results[1].refit_age == 0
         assert min(r.refit_age for r in results[2:]) >= 1
 
+    def test_the_first_decision_waits_once_a_stream_even_when_its_refit_is_late(
+            self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """Refits take 0.3 s and the first decision may wait 50 ms: it times out, and no later frame waits; after
+        a reset the new stream's first decision waits again."""
+        import moseg_ros.methods.moving_objects as moving_objects
+
+        _slow_refit(monkeypatch, 0.3)
+        monkeypatch.setattr(moving_objects, "FIRST_REFIT_WAIT_S", 0.05)
+        waits: list[float] = []
+        wait_for = BackgroundRefit.wait_for
+
+        def recorded(self, accept, timeout):
+            waits.append(timeout)
+            return wait_for(self, accept, timeout)
+
+        monkeypatch.setattr(BackgroundRefit, "wait_for", recorded)
+        pipeline = Pipeline(PipelineConfig(), live=True)
+        frames = textured_frames(6)
+        try:
+            for i, frame in enumerate(frames):
+                pipeline.process(frame, 1_000 + i * 100_000_000)
+            assert waits == [0.05]
+            pipeline.method.reset()
+            for i, frame in enumerate(frames[:3]):
+                pipeline.process(frame, 10_000_000_000 + i * 100_000_000)
+            assert waits == [0.05, 0.05]
+        finally:
+            pipeline.close()
+
     def test_frames_that_wait_for_their_own_refit_get_the_inline_masks(self) -> None:
         frames = textured_frames(12)
         inline = Pipeline(PipelineConfig(refit="inline"))

@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from moseg_ros.pipeline import PipelineConfig
 
 
-# The longest the stream's first decision waits for its refit (about 35 ms on KITTI frames on two cores; a
-# worker that takes longer leaves that frame empty, as before any refit).
+# The longest the stream's first decision waits for its refit (a refit takes tens of milliseconds; a worker that
+# takes longer leaves that one frame empty, as before any refit).
 FIRST_REFIT_WAIT_S = 1.0
 
 
@@ -72,6 +72,7 @@ class MovingObjects:
         else:
             self._worker.clear(self._front_end.reset)
         self._applied = -1
+        self._first_decision_waited = False
 
     def close(self) -> None:
         """Stop the refit worker, if any."""
@@ -108,13 +109,13 @@ class MovingObjects:
         if self._worker is None:
             return self._front_end.refit(observation)
         self._raise_refit_error()
-        latest = self._worker.latest()
         self._worker.submit(observation)
         wait = self.config.refit_wait_ms / 1e3
-        if observation.index > 0 and (latest is None or latest.index == 0):
-            # Until a refit of two frames is done there is nothing to apply but an empty mask: the stream's first
-            # decision (after a start or a reset) waits for its own refit, once.
+        if observation.index > 0 and not self._first_decision_waited:
+            # Before the first refit of two frames is done there is nothing to apply but an empty mask: the
+            # stream's first decision (after a start or a reset) waits for its own refit, once.
             wait = max(wait, FIRST_REFIT_WAIT_S)
+            self._first_decision_waited = True
         if wait > 0:
             self._worker.wait_for(lambda refit: refit.index >= observation.index, wait)
             self._raise_refit_error()
