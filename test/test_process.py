@@ -34,6 +34,16 @@ def test_process_writes_one_mask_per_frame_deterministically(textured_bag, tmp_p
     assert np.mean([a[s].mean() for s in inputs[5:]]) > 2.0  # the sliding block is found
 
 
+def test_live_frames_that_wait_for_their_own_refit_give_the_offline_masks(textured_bag, tmp_path):
+    offline = process_bag(textured_bag, tmp_path / "offline")
+    assert moseg(["process", str(textured_bag), "-o", str(tmp_path / "live"), "--no-progress", "--live", "20",
+                  "--set", "refit_wait_ms=1000"]) == 0
+    a, b = _masks(tmp_path / "offline"), _masks(tmp_path / "live")
+    assert offline["masks_out"] == 20 and sorted(a) == sorted(b)
+    assert all(np.array_equal(a[s], b[s]) for s in a)
+    assert moseg(["process", str(textured_bag), str(textured_bag), "-o", str(tmp_path / "two"), "--live", "10"]) == 2
+
+
 def test_undecodable_frames_are_skipped_and_reported(tmp_path):
     bag = tmp_path / "bad"
     with BagWriter(bag) as writer:

@@ -4,7 +4,9 @@
 OUT is a folder that gets one output bag per input (``OUT/<input name>/``) and ``summary.json``; the bags
 run one after another, or as Ray tasks with ``--ray`` (tools/fleet.py).
 
-Deterministic and DDS-free: the same frames always give the same masks. Output topics are named as the
+Deterministic and DDS-free: the same frames always give the same masks. With ``--live HZ`` (one bag) the
+pipeline runs as the node does instead, refit on its worker and frames paced at HZ: the masks the node would
+publish at that camera rate. Output topics are named as the
 node's (``/segmenter/dynamic_mask`` ...), so every consumer reads both kinds of output bag alike.
 A frame that cannot be decoded is skipped, counted and listed; nothing is dropped silently. A damaged
 input bag is processed up to the damage: the output holds the masks of every frame before it and the
@@ -23,8 +25,9 @@ from typing import Any
 
 from moseg_ros.io.bags import BagDamagedError, BagWriter, list_topics, pick_image_topic, read_images
 from moseg_ros.io.frames import decode_frame
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
+from moseg_ros.timing import Pacer
 from moseg_ros.tools.fleet import LOCAL, is_bag, process_fleet, summary_table
 
 OUTPUT_PREFIX = "/segmenter"
@@ -32,11 +35,13 @@ OUTPUT_PREFIX = "/segmenter"
 
 def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None = None,
                 config: PipelineConfig = PipelineConfig(), progress: bool = False,
-                overwrite: bool = False) -> dict[str, Any]:
+                overwrite: bool = False, live: float = 0.0) -> dict[str, Any]:
     """Segment every image of ``bag`` and write the three mask topics to ``output`` (rosbag2 MCAP).
 
     An existing ``output`` is refused (FileExistsError), or with ``overwrite`` replaced when it is a bag other
-    than the input; nothing is removed before the input has proved usable.
+    than the input; nothing is removed before the input has proved usable. ``live``: a camera's rate (Hz) to run
+    the pipeline at as the node does, refit on its worker and frames paced (the masks the node would publish;
+    0: offline and deterministic).
 
     Returns:
         Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing, and
@@ -49,9 +54,11 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
     topic = pick_image_topic(list_topics(bag), image_topic)  # an unusable input fails before the output exists
     if overwrite:
         _remove_output_bag(Path(output), Path(bag))
-    with Pipeline(config) as pipeline, BagWriter(output) as writer:
+    pacer = Pacer(live)
+    with Pipeline(config, live=live > 0) as pipeline, BagWriter(output) as writer:
         try:
             for image in read_images(bag, topic):
+                pacer.wait()
                 _process_image(pipeline, image, writer, counts, seconds)
                 if progress:
                     print(f"\r{counts['frames_in']} frames, {seconds[-1] * 1e3 if seconds else 0:.0f} ms/frame",
@@ -118,6 +125,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replace an existing output bag; with several bags, redo those whose output is "
                              "complete (skipped otherwise)")
     add_settings_arguments(parser)
+    add_live_argument(parser)
 
 
 def _is_fleet(args: argparse.Namespace) -> bool:
@@ -145,10 +153,13 @@ def run(args: argparse.Namespace) -> int:
     """Process the bag and print the counts; exit 1 when a frame was skipped or the input is damaged (its
     readable part is processed), 2 when the bag cannot be used at all."""
     if _is_fleet(args):
+        if args.live > 0:
+            print("moseg process: error: --live takes one bag (a camera's pace is one stream's)", file=sys.stderr)
+            return 2
         return run_fleet(args)
     try:
         counts = process_bag(args.bags[0], args.output, image_topic=args.topic, config=pipeline_config(args),
-                             progress=not args.no_progress, overwrite=args.overwrite)
+                             progress=not args.no_progress, overwrite=args.overwrite, live=args.live)
     except FileExistsError as error:
         hint = "" if args.overwrite else "; --overwrite replaces an earlier output bag"
         print(f"moseg process: error: {error}{hint}", file=sys.stderr)
