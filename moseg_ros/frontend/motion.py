@@ -461,8 +461,7 @@ class MotionFrontEnd:
         (``remembered``, with ``settled`` (S, 2) points at this size)."""
         last = self._memory
         before = last[1] if last is not None and last[0] == self._index - 1 else None
-        flow = self._backward[-1][1] if self._backward and self._backward[-1][0] == self._index else None
-        age = remembered(fresh, before, flow, settled, self.config.memory_frames, self.config.memory_veto)
+        age = remembered(fresh, before, self._flow_here(), settled, self.config.memory_frames, self.config.memory_veto)
         self._memory = (self._index, age)
         return age != NO_EVIDENCE
 
@@ -471,25 +470,28 @@ class MotionFrontEnd:
         """``moving`` grown and trimmed by the flow view around each ``group`` (of the moving tracks, those
         ``here``), from the tracks' and the dense flow's motion back over ``dense_gap`` frames; unchanged
         without this frame's dense flow."""
-        gap = self.config.dense_gap
-        if not self._backward or self._backward[-1][0] != self._index or len(self._frames) <= gap or not here.any():
+        gap, flow = self.config.dense_gap, self._flow_here()
+        if flow is None or len(self._frames) <= gap or not here.any():
             return moving
         ids, points = self._points.ids, self._points.points
         before_ids, before = self._frames[-1 - gap]
         _, now, then = np.intersect1d(ids, before_ids, assume_unique=True, return_indices=True)
         of_track = np.full(len(ids), -1, dtype=np.int64)
         of_track[here] = group
-        return refine_by_flow(moving, self._backward[-1][1], points[now] * scale, (before[then] - points[now]) * scale,
+        return refine_by_flow(moving, flow, points[now] * scale, (before[then] - points[now]) * scale,
                               of_track[now], link_px, self.config.object_flow)
+
+    def _flow_here(self) -> np.ndarray | None:
+        """The current frame's dense flow back to the frame before, None when it has none."""
+        return self._backward[-1][1] if self._backward and self._backward[-1][0] == self._index else None
 
     def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
         """``mask`` of frame ``index`` warped to the current frame along the backward flows since: one warp a
         frame while the same refit is applied frame after frame (the last frame's carried mask goes one flow on,
         the same steps as warping from ``index`` each time)."""
-        last = self._carry
-        if (last is not None and last[:2] == (index, self._index - 1) and self._backward
-                and self._backward[-1][0] == self._index):
-            here = carried(last[2], self._index - 1, (self._backward[-1],))
+        last, flow = self._carry, self._flow_here()
+        if last is not None and last[:2] == (index, self._index - 1) and flow is not None:
+            here = carried(last[2], self._index - 1, ((self._index, flow),))
         else:
             here = carried(mask, index, tuple(self._backward))
         self._carry = (index, self._index, here)
