@@ -36,6 +36,7 @@ from moseg_ros.io.image import declared_size, image_from_array
 from moseg_ros.params import Setting, all_settings, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import Masks, debug_overlay
+from moseg_ros.timing import next_arrival
 
 def _describe(entry: Setting) -> ParameterDescriptor:
     """A read-only parameter descriptor with the setting's range, or its choices in the constraints text."""
@@ -234,6 +235,12 @@ class SegmenterNode(Node):
             return None
         return decode_instances(found)
 
+    def _next_frame_at(self) -> float | None:
+        """When the camera's next frame is expected (``timing.next_arrival``), the time this frame may spend on
+        its refit (``refit_wait_ms`` -1); now when a frame already waits in the queue (there is no time)."""
+        with self._wake:
+            return time.monotonic() if self._queue else next_arrival(self._arrivals)
+
     def _handle(self, msg: Any, arrived: float) -> None:
         try:
             frame = decode_frame(msg, self.settings["max_pixels"])
@@ -248,7 +255,8 @@ class SegmenterNode(Node):
                        f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame))
+        result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame),
+                                       self._next_frame_at())
         kind = result.status.split(":")[0]
         self.statuses[kind] += 1
         self._refit_ages.append(result.refit_age)

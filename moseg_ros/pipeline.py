@@ -78,11 +78,12 @@ class PipelineConfig:
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
-    refit_wait_ms: float = setting(0.0, "moving_objects: how long a frame may wait for the background refit of its "
-                                   "own observation before it takes the newest refit done (0: never waits, the "
-                                   "lowest latency, decisions a frame or more old; only the stream's first decision "
-                                   "always waits for its own; a camera at 10 Hz leaves time to wait, and the masks "
-                                   "are then those of the offline tools)", low=0.0, high=1000.0)
+    refit_wait_ms: float = setting(-1.0, "moving_objects: how long a frame may wait for the background refit of "
+                                   "its own observation before it takes the newest refit done. -1 (auto): as long as "
+                                   "the camera's rate leaves before the next frame (at 10 Hz the refit fits, and the "
+                                   "masks are those of the offline tools; at 30 Hz there is no time, and decisions "
+                                   "are a frame or more old); 0: never waits, the lowest latency (only the stream's "
+                                   "first decision always waits for its own)", low=-1.0, high=1000.0)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "
                                   "the pipeline runs (0: one when the refit runs on its background worker, so that "
                                   "the frame path and the refit each keep a core of their own; otherwise OpenCV's "
@@ -228,7 +229,7 @@ class Pipeline:
         return None
 
     def process(self, image: np.ndarray, stamp_ns: int, instances: np.ndarray | None = None,
-                camera_matrix: np.ndarray | None = None) -> FrameResult:
+                camera_matrix: np.ndarray | None = None, next_frame_at: float | None = None) -> FrameResult:
         """Segment one frame.
 
         Args:
@@ -237,6 +238,8 @@ class Pipeline:
             instances: optional (H, W) int upstream instance ids for this frame (0 or negative = none); without
                 them, the ``instance_model``'s, when one is set.
             camera_matrix: optional (3, 3) K of the camera at the image's size (camera_info).
+            next_frame_at: when (``time.monotonic()``) the next frame is expected (a live camera's pace; None:
+                not known): ``refit_wait_ms`` -1 waits for the refit within the time until then.
 
         Returns:
             The frame's masks and status.
@@ -259,7 +262,7 @@ class Pipeline:
             with stages("prepare"):
                 if instances is None and self._instance_model is not None:
                     instances = self._instance_model(image)
-                frame = self._frame_input(image, instances, camera_matrix)
+                frame = self._frame_input(image, instances, camera_matrix, next_frame_at)
             with stages("decision"):
                 decision = self.method.step(frame)
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
@@ -274,13 +277,13 @@ class Pipeline:
                            reason=reason or "", stages=_stage_seconds(stages.seconds, decision.stages),
                            refit_age=decision.refit_age, refit_stages=decision.refit_stages)
 
-    def _frame_input(self, image: np.ndarray, instances: np.ndarray | None,
-                     camera_matrix: np.ndarray | None) -> FrameInput:
+    def _frame_input(self, image: np.ndarray, instances: np.ndarray | None, camera_matrix: np.ndarray | None,
+                     next_frame_at: float | None) -> FrameInput:
         full = to_gray(image, "mono8" if image.ndim == 2 else "rgb8")
         h, w = self._working_size(*full.shape)
         if instances is not None:  # ids <= 0 are no instance (segmenters mark "none" with 0 or -1)
             instances = cv2.resize(np.maximum(instances, 0).astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
-        return FrameInput(full, (h, w), instances, camera_matrix)
+        return FrameInput(full, (h, w), instances, camera_matrix, next_frame_at)
 
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
         masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)

@@ -1,10 +1,13 @@
-"""Wall time per named stage of one frame, for the benchmarks and the node's diagnostics; pacing at a camera's rate."""
+"""Wall time per named stage of one frame, for the benchmarks and the node's diagnostics; pacing at a camera's rate,
+and when a camera's next frame is due."""
 
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+
+import numpy as np
 
 
 class Stages:
@@ -54,3 +57,21 @@ class Pacer:
             self._start = time.monotonic()
         sleep_until(self._start + self._frames * self.period)
         self._frames += 1
+
+    @property
+    def next_due(self) -> float | None:
+        """When (``time.monotonic()``) the frame after the one ``wait()`` let through last is due; None back to back
+        or before the first frame."""
+        if self._start is None or self.period == 0:
+            return None
+        return self._start + self._frames * self.period
+
+
+def next_arrival(arrivals: Iterable[float], frames: int = 8) -> float | None:
+    """When the frame after the newest of ``arrivals`` (each frame's ``time.monotonic()`` on arrival, oldest first)
+    is expected: the newest plus the median of the last ``frames`` intervals (a camera's period, robust to a late
+    or lost frame); None before two arrivals."""
+    last = np.fromiter(arrivals, dtype=np.float64)[-frames - 1:]
+    if last.size < 2:
+        return None
+    return float(last[-1] + np.median(np.diff(last)))

@@ -182,6 +182,24 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
         probe.close()
 
 
+def test_at_a_camera_pace_with_time_to_spare_each_decision_is_the_frames_own(segmenter, ros_domain, monkeypatch):
+    """``refit_wait_ms`` -1 (the default): frames at 4 Hz leave time before the next one, and each frame waits for
+    the refit of its own observation (``refit_wait_ms`` 0 would apply the one before: refit_age 1)."""
+    process, log = segmenter
+    probe = _Probe(ros_domain, monkeypatch)
+    try:
+        assert probe.wait_for_node(), "node not discovered"
+        start = time.monotonic()
+        for i, frame in enumerate(textured_frames(10)):
+            probe.spin_until(lambda: time.monotonic() >= start + 0.25 * i, 5)
+            probe.publisher.publish(_image(frame, (10 + i) * 1_000_000_000))
+        assert probe.spin_until(lambda: probe.diagnostics.get("frames_out") == "10", 20), probe.diagnostics
+        assert probe.diagnostics["refit_age_max"] == "0", probe.diagnostics
+        assert process.poll() is None, log.read_text()
+    finally:
+        probe.close()
+
+
 def test_frames_too_small_for_the_method_get_empty_masks_and_are_counted(segmenter, ros_domain, monkeypatch):
     """Two mono8 64x8 frames and three rgb8 640x31 ones took the node down (SIGSEGV inside DIS flow)."""
     process, log = segmenter

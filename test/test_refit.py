@@ -300,6 +300,50 @@ class TestPipelineWithBackgroundRefit:
         assert ages[0] == 0  # the stream's first decision waits for its own refit, whatever the setting
         assert min(ages[1:]) >= 1 and max(ages) >= 2
 
+    def test_auto_waits_for_its_own_refit_only_when_the_camera_leaves_time(
+            self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """``refit_wait_ms`` -1 (the default), refits of 0.1 s: with the next frame a second away every frame waits
+        for its own refit (age 0, the wait among its stages); with the next frame due now, or not known, none
+        does after the stream's first decision."""
+        _slow_refit(monkeypatch, 0.1)
+        frames = textured_frames(6)
+        runs = {}
+        with Pipeline(PipelineConfig(), live=True) as pipeline:
+            for name, spare in (("spare", 1.0), ("due", 0.0), ("unknown", None)):
+                pipeline.reset()
+                runs[name] = [pipeline.process(frame, 1_000 + i * 100_000_000,
+                                               next_frame_at=None if spare is None else time.monotonic() + spare)
+                              for i, frame in enumerate(frames)]
+        assert [r.refit_age for r in runs["spare"][1:]] == [0] * 5
+        assert all(r.stages["refit_wait"] > 0.03 for r in runs["spare"][2:])
+        for name in ("due", "unknown"):
+            assert min(r.refit_age for r in runs[name][2:]) >= 1, name
+            assert all("refit_wait" not in r.stages for r in runs[name][2:]), name
+
+    def test_auto_waits_at_most_a_share_of_the_time_to_the_next_frame_and_only_when_a_refit_fits(
+            self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """The next frame 0.1 s after each frame starts; the first refits are quick, the later ones take 0.5 s.
+        Frames after a quick refit wait, but no longer than AUTO_WAIT_SHARE of what is left of that 0.1 s; once
+        a refit took longer than that, no frame waits (the wait could not bring its own refit)."""
+        from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
+
+        original = MotionFrontEnd.refit
+        sleeps = iter([0.0] * 3 + [0.5] * 20)
+
+        def varying(self, observation):
+            time.sleep(next(sleeps))
+            return original(self, observation)
+
+        monkeypatch.setattr(MotionFrontEnd, "refit", varying)
+        results = []
+        with Pipeline(PipelineConfig(), live=True) as pipeline:
+            for i, frame in enumerate(textured_frames(16)):
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000, next_frame_at=time.monotonic() + 0.1))
+        waits = [r.stages.get("refit_wait", 0.0) for r in results]
+        assert 0 < max(waits[2:5]) and max(waits[2:]) <= AUTO_WAIT_SHARE * 0.1 + 0.01, waits
+        assert waits[-4:] == [0.0] * 4, waits  # the first slow refit is done by then
+        assert min(r.refit_age for r in results[-4:]) >= 1
+
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
         original = MotionFrontEnd.refit
         calls = {"n": 0}

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import collections
 import time
 
 import pytest
 
 import moseg_ros.timing as timing
-from moseg_ros.timing import Pacer, Stages, sleep_until
+from moseg_ros.timing import Pacer, Stages, next_arrival, sleep_until
 
 
 class TestStages:
@@ -79,3 +80,38 @@ class TestPacer:
     def test_a_negative_rate_is_refused(self):
         with pytest.raises(ValueError, match="rate must be >= 0"):
             Pacer(-1.0)
+
+    def test_next_due_is_the_frame_after_the_last_one_let_through(self, monkeypatch):
+        clock = FakeClock(monkeypatch)
+        pacer = Pacer(10.0)
+        assert pacer.next_due is None  # before the first frame
+        pacer.wait()
+        assert pacer.next_due == pytest.approx(100.1)
+        clock.now += 0.25  # late: frame 1 was due at 100.1
+        pacer.wait()
+        assert pacer.next_due == pytest.approx(100.2) and pacer.next_due < clock.now  # already due: no time
+
+    def test_back_to_back_has_no_next_due(self, monkeypatch):
+        FakeClock(monkeypatch)
+        pacer = Pacer(0.0)
+        pacer.wait()
+        assert pacer.next_due is None
+
+
+class TestNextArrival:
+    def test_needs_two_arrivals(self):
+        assert next_arrival([]) is None and next_arrival([5.0]) is None
+
+    def test_the_newest_plus_the_median_interval(self):
+        assert next_arrival([1.0, 1.1, 1.2, 1.3]) == pytest.approx(1.4)
+
+    def test_a_lost_frame_does_not_move_the_period(self):
+        arrivals = [0.0, 0.1, 0.2, 0.4, 0.5, 0.6]  # 0.3 never came
+        assert next_arrival(arrivals) == pytest.approx(0.7)
+
+    def test_only_the_last_frames_count(self):
+        arrivals = [0.0, 1.0, 2.0, 3.0] + [3.0 + 0.1 * k for k in range(1, 9)]  # 1 Hz, then 10 Hz
+        assert next_arrival(arrivals, frames=8) == pytest.approx(3.9)
+
+    def test_takes_the_nodes_deque(self):
+        assert next_arrival(collections.deque([0.0, 0.5, 1.0], maxlen=100)) == pytest.approx(1.5)

@@ -86,7 +86,7 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
     with Pipeline(config, live=True) as pipeline:
         for i, (frame, labels) in enumerate(zip(frames, maps)):
             pacer.wait()
-            results.append(pipeline.process(frame, i * 100_000_000, labels))
+            results.append(pipeline.process(frame, i * 100_000_000, labels, next_frame_at=pacer.next_due))
     ms = np.array([r.seconds for r in results[1:]]) * 1e3  # the first frame only fills the window
     stages: dict[str, list[float]] = {}
     if decode_ms is not None:

@@ -122,7 +122,7 @@ def score_clip(name: str, images: list[Path], annotations: list[Path | None],
                 unreadable.append(image.name)
                 continue
             pacer.wait()
-            result = pipeline.process(frame, round(t * FRAME_PERIOD_NS))
+            result = pipeline.process(frame, round(t * FRAME_PERIOD_NS), next_frame_at=pacer.next_due)
             seconds.append(result.seconds)
             if t == 0 or annotation is None:
                 continue

@@ -106,7 +106,7 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
                 masks.append(None)
                 continue
             pacer.wait()
-            result = pipeline.process(frame, t * FRAME_PERIOD_NS)
+            result = pipeline.process(frame, t * FRAME_PERIOD_NS, next_frame_at=pacer.next_due)
             masks.append(result.masks.dynamic)
             seconds.append(result.seconds)
     unread = np.array([mask is None for mask in masks])

@@ -35,12 +35,15 @@ class FrameInput:
         working_size: (h, w) of the working resolution.
         instances: (h, w) int32 upstream instance ids at the working resolution, or None.
         camera_matrix: (3, 3) K at the input resolution (from camera_info), or None when uncalibrated.
+        next_frame_at: when (``time.monotonic()``) the camera's next frame is expected, so that a method may use
+            the time until then (None: not known, or frames come back to back).
     """
 
     full: np.ndarray
     working_size: tuple[int, int]
     instances: np.ndarray | None = None
     camera_matrix: np.ndarray | None = None
+    next_frame_at: float | None = None
 
     @functools.cached_property
     def gray(self) -> np.ndarray:

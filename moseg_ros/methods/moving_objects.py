@@ -11,13 +11,15 @@ With ``refit`` "background" the fits and tests (the front-end's ``refit``) run o
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
 done, whose moving tracks are drawn where they are now and whose dense mask is carried along the flow;
 ``Decision.refit_age`` says how many frames old that refit is; with ``refit_wait_ms`` a frame waits that long at
-most for the refit of its own observation (age 0 when it comes in time). The stream's first decision (the second
-frame after a start or a reset) always waits for its own refit: before it there is nothing to apply. "inline"
-refits every frame on the frame path (deterministic: the offline tools).
+most for the refit of its own observation (age 0 when it comes in time), with -1 (the default) as long as the
+camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it. The stream's first
+decision (the second frame after a start or a reset) always waits for its own refit: before it there is nothing to
+apply. "inline" refits every frame on the frame path (deterministic: the offline tools).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -38,6 +40,10 @@ if TYPE_CHECKING:
 # The longest the stream's first decision waits for its refit (a refit takes tens of milliseconds; a worker that
 # takes longer leaves that one frame empty, as before any refit).
 FIRST_REFIT_WAIT_S = 1.0
+# With ``refit_wait_ms`` -1 a frame waits for its refit at most this share of the time left until the camera's next
+# frame (and only when the last refit took no longer): the rest is for drawing the decision and rendering the
+# masks, so that the next frame starts on time.
+AUTO_WAIT_SHARE = 0.75
 
 
 def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
@@ -84,7 +90,7 @@ class MovingObjects:
         tracking = resized_to_width(frame.full, self.config.track_width)
         K = None if frame.camera_matrix is None else scaled_to(frame.camera_matrix, frame.full.shape, tracking.shape)
         observation = self._front_end.observe(tracking, K)
-        refit = self._refit(observation)
+        refit, waited = self._refit(observation, self._wait_seconds(frame))
         labels = self._front_end.apply(refit)
         first = observation.index == 0
         if frame.instances is not None:
@@ -94,6 +100,8 @@ class MovingObjects:
         else:
             decision = Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
         decision.stages = dict(self._front_end.stages.seconds)
+        if waited > 0:
+            decision.stages["refit_wait"] = waited
         if refit is not None:
             decision.refit_age = observation.index - refit.index
             if refit.index != self._applied:
@@ -103,23 +111,38 @@ class MovingObjects:
                 decision.stages.update(refit.stages)
         return decision
 
-    def _refit(self, observation: Observation) -> Refit | None:
+    def _wait_seconds(self, frame: FrameInput) -> float:
+        """How long this frame may wait for its own background refit: ``refit_wait_ms``, or with -1 a share of the
+        time until the camera's next frame, when a refit fits in it (none when the next frame's time is not
+        known)."""
+        if self.config.refit_wait_ms >= 0:
+            return self.config.refit_wait_ms / 1e3
+        if frame.next_frame_at is None or self._worker is None:
+            return 0.0
+        budget = AUTO_WAIT_SHARE * (frame.next_frame_at - time.monotonic())
+        # A wait shorter than a refit takes would end with the same older refit and only make the frame later (at
+        # 30 Hz it made the node skip half of the frames).
+        return budget if budget >= self._worker.seconds else 0.0
+
+    def _refit(self, observation: Observation, wait: float) -> tuple[Refit | None, float]:
         """This frame's refit (inline), or the newest one the worker has done (background), after waiting up to
-        ``refit_wait_ms`` for this frame's own."""
+        ``wait`` seconds for this frame's own; and the seconds it waited."""
         if self._worker is None:
-            return self._front_end.refit(observation)
+            return self._front_end.refit(observation), 0.0
         self._raise_refit_error()
         self._worker.submit(observation)
-        wait = self.config.refit_wait_ms / 1e3
         if observation.index > 0 and not self._first_decision_waited:
             # Before the first refit of two frames is done there is nothing to apply but an empty mask: the
             # stream's first decision (after a start or a reset) waits for its own refit, once.
             wait = max(wait, FIRST_REFIT_WAIT_S)
             self._first_decision_waited = True
-        if wait > 0:
-            self._worker.wait_for(lambda refit: refit.index >= observation.index, wait)
-            self._raise_refit_error()
-        return self._worker.latest()
+        if wait <= 0:
+            return self._worker.latest(), 0.0
+        start = time.perf_counter()
+        self._worker.wait_for(lambda refit: refit.index >= observation.index, wait)
+        waited = time.perf_counter() - start
+        self._raise_refit_error()
+        return self._worker.latest(), waited
 
     def _raise_refit_error(self) -> None:
         error = self._worker.take_error()

@@ -52,7 +52,8 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     with Pipeline(config, live=live > 0) as pipeline:
         for t, frame in enumerate(sequence.frames):
             pacer.wait()
-            result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None)
+            result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None,
+                                      next_frame_at=pacer.next_due)
             if t < skip:
                 continue
             ids, areas = np.unique(frame.instances, return_counts=True)

@@ -59,7 +59,7 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
         try:
             for image in read_images(bag, topic):
                 pacer.wait()
-                _process_image(pipeline, image, writer, counts, seconds)
+                _process_image(pipeline, image, writer, counts, seconds, pacer.next_due)
                 if progress:
                     print(f"\r{counts['frames_in']} frames, {seconds[-1] * 1e3 if seconds else 0:.0f} ms/frame",
                           end="", file=sys.stderr, flush=True)
@@ -89,15 +89,16 @@ def _remove_output_bag(output: Path, bag: Path) -> None:
 
 
 def _process_image(pipeline: Pipeline, image: Any, writer: BagWriter, counts: dict[str, Any],
-                   seconds: list[float]) -> None:
-    """Segment one bag image and write its three masks, or count it as skipped when it cannot be decoded."""
+                   seconds: list[float], next_frame_at: float | None = None) -> None:
+    """Segment one bag image and write its three masks, or count it as skipped when it cannot be decoded
+    (``next_frame_at``: when the next is due at a live pace, see Pipeline.process)."""
     counts["frames_in"] += 1
     try:
         frame = decode_frame(image.msg)
     except ValueError as error:
         counts["skipped"].append({"stamp_ns": image.stamp_ns, "reason": str(error)})
         return
-    result = pipeline.process(frame, image.stamp_ns)
+    result = pipeline.process(frame, image.stamp_ns, next_frame_at=next_frame_at)
     status = result.status.split(":")[0]
     counts["statuses"][status] = counts["statuses"].get(status, 0) + 1
     seconds.append(result.seconds)
