@@ -227,10 +227,11 @@ class TestPipelineWithBackgroundRefit:
                    for a, b in zip(masks["inline"][8:], masks["background"][8:])]
         assert np.mean(overlap) > 0.7
 
-    def test_the_first_decision_waits_for_its_own_refit_and_no_later_one_does(
+    def test_the_first_decisions_up_to_the_first_track_pair_wait_for_their_own_refits_and_no_later_one_does(
             self, monkeypatch: pytest.MonkeyPatch) -> None:
-        """Refits take 0.2 s and frames come back to back: the second frame (the first with a decision) gets its
-        own refit; the frames after it go on with older ones."""
+        """Refits take 0.2 s and frames come back to back: the second frame (the first with a decision) and the
+        third (the first with a pair for the track test, two frames apart) get their own refits; the frames after
+        them go on with older ones."""
         _slow_refit(monkeypatch, 0.2)
         pipeline = Pipeline(PipelineConfig(), live=True)
         try:
@@ -238,13 +239,13 @@ class TestPipelineWithBackgroundRefit:
         finally:
             pipeline.close()
         assert results[0].kind is Status.WARMUP and results[0].refit_age is None
-        assert results[1].refit_age == 0
-        assert min(r.refit_age for r in results[2:]) >= 1
+        assert results[1].refit_age == results[2].refit_age == 0
+        assert min(r.refit_age for r in results[3:]) >= 1
 
-    def test_the_first_decision_waits_once_a_stream_even_when_its_refit_is_late(
+    def test_the_first_decisions_wait_once_a_stream_even_when_their_refits_are_late(
             self, monkeypatch: pytest.MonkeyPatch) -> None:
-        """Refits take 0.3 s and the first decision may wait 50 ms: it times out, and no later frame waits; after
-        a reset the new stream's first decision waits again."""
+        """Refits take 0.3 s and the first decisions may wait 50 ms: the second and third frames time out, and no
+        later frame waits; after a reset the new stream's first decisions wait again."""
         import moseg_ros.methods.moving_objects as moving_objects
 
         _slow_refit(monkeypatch, 0.3)
@@ -262,11 +263,11 @@ class TestPipelineWithBackgroundRefit:
         try:
             for i, frame in enumerate(frames):
                 pipeline.process(frame, 1_000 + i * 100_000_000)
-            assert waits == [0.05]
-            pipeline.method.reset()
-            for i, frame in enumerate(frames[:3]):
-                pipeline.process(frame, 10_000_000_000 + i * 100_000_000)
             assert waits == [0.05, 0.05]
+            pipeline.method.reset()
+            for i, frame in enumerate(frames[:4]):
+                pipeline.process(frame, 10_000_000_000 + i * 100_000_000)
+            assert waits == [0.05] * 4
         finally:
             pipeline.close()
 
@@ -297,14 +298,14 @@ class TestPipelineWithBackgroundRefit:
         finally:
             pipeline.close()
         ages = [r.refit_age for r in results if r.refit_age is not None]
-        assert ages[0] == 0  # the stream's first decision waits for its own refit, whatever the setting
-        assert min(ages[1:]) >= 1 and max(ages) >= 2
+        assert ages[:2] == [0, 0]  # the stream's first decisions wait for their own refits, whatever the setting
+        assert min(ages[2:]) >= 1 and max(ages) >= 2
 
     def test_auto_waits_for_its_own_refit_only_when_the_camera_leaves_time(
             self, monkeypatch: pytest.MonkeyPatch) -> None:
         """``refit_wait_ms`` -1 (the default), refits of 0.1 s: with the next frame a second away every frame waits
         for its own refit (age 0, the wait among its stages); with the next frame due now, or not known, none
-        does after the stream's first decision."""
+        does after the stream's first decisions."""
         _slow_refit(monkeypatch, 0.1)
         frames = textured_frames(6)
         runs = {}
@@ -315,10 +316,10 @@ class TestPipelineWithBackgroundRefit:
                                                next_frame_at=None if spare is None else time.monotonic() + spare)
                               for i, frame in enumerate(frames)]
         assert [r.refit_age for r in runs["spare"][1:]] == [0] * 5
-        assert all(r.stages["refit_wait"] > 0.03 for r in runs["spare"][2:])
+        assert all(r.stages["refit_wait"] > 0.03 for r in runs["spare"][3:])
         for name in ("due", "unknown"):
-            assert min(r.refit_age for r in runs[name][2:]) >= 1, name
-            assert all("refit_wait" not in r.stages for r in runs[name][2:]), name
+            assert min(r.refit_age for r in runs[name][3:]) >= 1, name
+            assert all("refit_wait" not in r.stages for r in runs[name][3:]), name
 
     def test_auto_waits_at_most_a_share_of_the_time_to_the_next_frame_and_only_when_a_refit_fits(
             self, monkeypatch: pytest.MonkeyPatch) -> None:
