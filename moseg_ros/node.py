@@ -38,6 +38,7 @@ from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import Masks, debug_overlay
 from moseg_ros.timing import next_arrival
 
+
 def _describe(entry: Setting) -> ParameterDescriptor:
     """A read-only parameter descriptor with the setting's range, or its choices in the constraints text."""
     descriptor = ParameterDescriptor(description=entry.description, read_only=True)

@@ -83,7 +83,8 @@ class PipelineConfig:
                                    "the camera's rate leaves before the next frame (at 10 Hz the refit fits, and the "
                                    "masks are those of the offline tools; at 30 Hz there is no time, and decisions "
                                    "are a frame or more old); 0: never waits, the lowest latency (only the stream's "
-                                   "first decision always waits for its own)", low=-1.0, high=1000.0)
+                                   "first decisions, up to the first with a pair for the track test, always wait for "
+                                   "their own)", low=-1.0, high=1000.0)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "
                                   "the pipeline runs (0: one when the refit runs on its background worker, so that "
                                   "the frame path and the refit each keep a core of their own; otherwise OpenCV's "
