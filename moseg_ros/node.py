@@ -256,8 +256,12 @@ class SegmenterNode(Node):
                        f"instance image {instances.shape} does not match frame {frame.shape[:2]}; ignored")
             instances = None
         stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-        result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame),
-                                       self._next_frame_at())
+        try:
+            result = self.pipeline.process(frame, stamp_ns, instances, self._camera_matrix_for(frame),
+                                           self._next_frame_at())
+        except Exception as error:  # a decodable frame gets masks whatever goes wrong: empty, with its status
+            self.counters.failures += 1
+            result = self.pipeline.failed(stamp_ns, frame.shape[:2], error)
         kind = result.status.split(":")[0]
         self.statuses[kind] += 1
         self._refit_ages.append(result.refit_age)

@@ -286,6 +286,13 @@ class Pipeline:
             instances = cv2.resize(np.maximum(instances, 0).astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
         return FrameInput(full, (h, w), instances, camera_matrix, next_frame_at)
 
+    def failed(self, stamp_ns: int, size: tuple[int, int], error: BaseException) -> FrameResult:
+        """The result of a frame of ``size`` (H, W) whose processing raised ``error`` outside the method (a caller's
+        own step): an empty mask with status failed, and the window cleared, as for a method that raises."""
+        self.reset()
+        return self._empty(stamp_ns, size, Status.FAILED, f"{type(error).__name__}: {error}".splitlines()[0],
+                           time.perf_counter())
+
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
         masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)
         return FrameResult(stamp_ns, masks, kind, np.zeros(0, dtype=np.int32), time.perf_counter() - start,

@@ -512,3 +512,32 @@ def test_a_mask_topic_is_built_only_while_someone_subscribes(ros_domain, monkeyp
         listener.destroy_node()
         node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+def test_a_decodable_frame_gets_an_empty_mask_when_the_nodes_own_step_raises(ros_domain, monkeypatch):
+    """In the node's process: the segmentation step raises outside the method (a bug in the node's own code); the
+    frame still gets a mask under its own header, empty, with status failed, and the failure is counted."""
+    import moseg_ros.node as node_module
+
+    for key, value in loopback_env(ros_domain).items():
+        monkeypatch.setenv(key, value)
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = node_module.SegmenterNode(context=context)
+    published: list[tuple[object, object]] = []
+    try:
+        def broken(*args, **kwargs):
+            raise RuntimeError("the node's own bug")
+
+        monkeypatch.setattr(node.pipeline, "process", broken)
+        monkeypatch.setattr(node, "_publish_masks", lambda header, masks: published.append((header, masks)))
+        frame = textured_frames(1)[0]
+        node._handle(_image(frame, 42 * 1_000_000_000), time.monotonic())
+        (header, masks), = published
+        assert stamp_to_ns(header.stamp) == 42 * 1_000_000_000 and header.frame_id == "camera"
+        assert masks.dynamic.shape == frame.shape[:2] and not masks.dynamic.any()
+        assert node.counters.failures == 1 and node.counters.frames_out == 1 and node.statuses["failed"] == 1
+    finally:
+        node.stop()
+        node.destroy_node()
+        rclpy.try_shutdown(context=context)

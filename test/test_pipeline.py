@@ -194,6 +194,19 @@ def test_a_method_that_raises_gives_an_empty_mask_with_the_reason_and_restarts_t
     assert pipeline.process(frames[3], 3 * STEP).status == "warmup"  # the window restarted
 
 
+def test_a_caller_s_failure_gives_the_same_empty_mask_and_restarts_the_window():
+    """``Pipeline.failed``: what the node publishes when its own step around ``process`` raises."""
+    pipeline = Pipeline()
+    frames = textured_frames(3)
+    pipeline.process(frames[0], 0)
+    pipeline.process(frames[1], STEP)
+    result = pipeline.failed(2 * STEP, frames[2].shape[:2], RuntimeError("lost\nsecond line"))
+    assert result.status == "failed: RuntimeError: lost" and result.stamp_ns == 2 * STEP
+    assert not result.masks.dynamic.any() and result.masks.dynamic.shape == frames[2].shape[:2]
+    assert result.masks.static.all()
+    assert pipeline.process(frames[2], 3 * STEP).status == "warmup"  # the window restarted
+
+
 class TestOpenCVThreads:
     def test_a_positive_setting_is_taken_as_is_while_the_pipeline_runs(self):
         before = cv2.getNumThreads()
