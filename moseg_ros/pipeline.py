@@ -267,9 +267,7 @@ class Pipeline:
             with stages("decision"):
                 decision = self.method.step(frame)
         except Exception as error:  # every decodable frame gets a mask; the status says why it is empty
-            self.reset()
-            return self._empty(stamp_ns, size, Status.FAILED,
-                               f"{type(error).__name__}: {error}".splitlines()[0], start)
+            return self.failed(stamp_ns, size, error, start)
         self._last_stamp, self._input_size = stamp_ns, size
         with stages("render"):
             masks = render_masks(decision.labels, decision.dynamic_ids, size, self.config.mask_margin_px)
@@ -286,12 +284,14 @@ class Pipeline:
             instances = cv2.resize(np.maximum(instances, 0).astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
         return FrameInput(full, (h, w), instances, camera_matrix, next_frame_at)
 
-    def failed(self, stamp_ns: int, size: tuple[int, int], error: BaseException) -> FrameResult:
-        """The result of a frame of ``size`` (H, W) whose processing raised ``error`` outside the method (a caller's
-        own step): an empty mask with status failed, and the window cleared, as for a method that raises."""
+    def failed(self, stamp_ns: int, size: tuple[int, int], error: BaseException,
+               start: float | None = None) -> FrameResult:
+        """The result of a frame of ``size`` (H, W) whose processing raised ``error``, in the method or in a caller's
+        own step around ``process``: an empty mask with status failed, and the window cleared. ``start``: the
+        ``time.perf_counter()`` its processing began (default: now)."""
         self.reset()
         return self._empty(stamp_ns, size, Status.FAILED, f"{type(error).__name__}: {error}".splitlines()[0],
-                           time.perf_counter())
+                           time.perf_counter() if start is None else start)
 
     def _empty(self, stamp_ns: int, size: tuple[int, int], kind: Status, reason: str, start: float) -> FrameResult:
         masks = render_masks(np.zeros(size, dtype=np.int32), np.zeros(0, dtype=np.int32), size)
