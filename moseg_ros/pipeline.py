@@ -100,7 +100,7 @@ class PipelineConfig:
         """The threads OpenCV gets while the pipeline runs (0: OpenCV's own choice), for a config whose refit
         is resolved (``refit_mode``). With a background refit OpenCV's parallel KLT and DIS on the frame path and
         the refit's own thread would contend for the same cores of a small CPU; one thread each is as fast at
-        p95 on two cores and leaves the refit a core (README)."""
+        p95 on two cores and leaves the refit a core (docs/experiments.md)."""
         if self.opencv_threads > 0:
             return self.opencv_threads
         return 1 if self.refit == "background" else 0

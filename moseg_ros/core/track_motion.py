@@ -69,8 +69,8 @@ car's columns, would otherwise pass for the car's lowest part.
 The dense flow gives the footing test what the tracks lack while an oncoming car is far: ``nearer_than_road``
 runs it on every pixel of a flow's ``dense_parallax`` (the cheirality vote ``behind_infinity`` reads too), with the
 road's inverse depth fitted to the flow's own pixels and the first road pixel under each pixel in its column as
-its footing. DIS smears the car's flow a few rows onto the road under it (README), so the footing comes out a
-little nearer than the car's foot; it still lies far closer to the foot than the first road track.
+its footing. DIS smears the car's flow a few rows onto the road under it (docs/experiments.md), so the footing
+comes out a little nearer than the car's foot; it still lies far closer to the foot than the first road track.
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ class TrackMotionConfig:
     # With the dense residual near each track (``moving_tracks``' ``dense``), a distance flags a track only where
     # the dense flow departs from the epipolar geometry by at least this share of it too: KLT drifts where its
     # window straddles a near object's edge (a tree trunk against the far street) and the dense flow there does
-    # not (README). 0: off. A distance ``evident_factor`` times the threshold needs no corroboration (KLT's
+    # not (docs/experiments.md). 0: off. A distance ``evident_factor`` times the threshold needs no corroboration (KLT's
     # drift stays within 1-3 times it; a mover's distance often goes far beyond).
     corroboration: float = 0.75
     evident_factor: float = 3.0
@@ -114,13 +114,13 @@ class TrackMotionConfig:
     # The full homography fit (MAGSAC++, the costliest fit of a refit on a street) runs only where a quick one
     # (plain RANSAC, ``screen_iterations``, on every ``screen_stride``-th track) explains at least this share
     # of F's inliers: a street's dominant plane holds a third of them, and no pair that came out planar on
-    # KITTI or DAVIS screened below three quarters (README).
+    # KITTI or DAVIS screened below three quarters (docs/experiments.md).
     homography_screen: float = 0.5
     screen_stride: int = 4
     screen_iterations: int = 50
     ground_ratio: float = 0.3
-    # The ground test in pixels (the module's docstring; README): the parallax short of the floor's by this many
-    # pixels and below this share of it.
+    # The ground test in pixels (the module's docstring; docs/experiments.md): the parallax short of the floor's by
+    # this many pixels and below this share of it.
     shortfall_px: float = 1.0
     shortfall_ratio: float = 0.6
     # The shortfall is measured at the row the track's object stands on: the lowest track of its column at its own
@@ -141,7 +141,7 @@ class TrackMotionConfig:
     # with how far it moved: its distance counts only beyond this share of its displacement (radians of line
     # direction; 0.03 is 1.7 degrees). On KITTI 07 the tracks flagged on near parked cars' windows and glints
     # moved 52 px over a pair at the median (the flagged movers of KT3DMoSeg 17 px), their distance 0.027 of
-    # it (the movers' 0.16; README).
+    # it (the movers' 0.16; docs/experiments.md).
     epipole_allowance: float = 0.03
 
 
@@ -375,9 +375,9 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
     exceeds ``1 + footing_margin`` times the parallax that bound gives it by more than ``excess_px``. An
     oncoming car closes in faster than the camera drives and looks nearer than the road it stands on; its
     tracks are few while it is far, and the first road track under it lies well below the road it stands on
-    (README), while the dense flow sees the road up to a few pixels under its bumper. The lower part of a static
-    object is as near as its foot, so it passes for road within the tolerance, and a margin at least the
-    tolerance keeps the object above it unflagged.
+    (docs/experiments.md), while the dense flow sees the road up to a few pixels under its bumper. The lower part
+    of a static object is as near as its foot, so it passes for road within the tolerance, and a margin at least
+    the tolerance keeps the object above it unflagged.
 
     Args:
         parallax: the flow's ``dense_parallax``.

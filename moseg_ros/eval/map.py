@@ -103,7 +103,7 @@ def run_colmap(frames: Frames, work: Path, masks: Path | None, mapper: str = "gl
 
     Every step runs on one thread and draws from ``seed``, so the same frames, masks and seed give the same
     map: on several threads COLMAP numbers the images in the order their features are done, and matching and
-    the mapper follow the ids (README: the spread it gave)."""
+    the mapper follow the ids (docs/experiments.md: the spread it gave)."""
     import pycolmap
 
     pycolmap.set_random_seed(seed)

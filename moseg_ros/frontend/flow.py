@@ -7,7 +7,7 @@ import numpy as np
 
 # name: (OpenCV's preset, variational refinement iterations per scale instead of the preset's, or None).
 # balanced is medium's resolution with 2 refinement iterations instead of 5: a fifth less time, and the
-# evaluations within 0.01 of medium's (README).
+# evaluations within 0.01 of medium's (docs/experiments.md).
 DIS_PRESETS = {
     "ultrafast": (cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, None),
     "fast": (cv2.DISOPTICAL_FLOW_PRESET_FAST, None),
@@ -20,7 +20,7 @@ class DenseFlow:
     """Dense inverse search flow (Kroeger et al. 2016) with a named speed/quality preset.
 
     The presets trade time for detail: fast stops at a quarter of the image's size, balanced and medium at
-    half, balanced with fewer rounds of variational refinement (their costs are in the README).
+    half, balanced with fewer rounds of variational refinement (their costs are in docs/experiments.md).
     """
 
     def __init__(self, preset: str = "fast") -> None:

@@ -74,7 +74,7 @@ class MotionFrontEndConfig:
     # KLT's window at the tracking width (1280 px): a smaller window drifts less where it straddles a mover's
     # edge (fewer static points flagged on KT3DMoSeg) and follows smaller movers, and each point costs less;
     # 13 px rather than 17 once the dense flow was DIS medium (21 -> 17 with fast, whose coarse flow needed
-    # the tracks' wider reach; the README has both measurements). Corners are found at the dense width, with
+    # the tracks' wider reach; docs/experiments.md has both measurements). Corners are found at the dense width, with
     # a quality floor low enough that as many are found there as at full size.
     tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=13, quality=0.001,
                                                                         seed_width=640))
@@ -82,7 +82,7 @@ class MotionFrontEndConfig:
     sticky_windows: int = 2
     sticky_frames: int = 8
     link_fraction: float = 0.032
-    # Three linked flagged tracks make a region: a pedestrian at 621 px holds two to five tracks (README).
+    # Three linked flagged tracks make a region: a pedestrian at 621 px holds two to five tracks (docs/experiments.md).
     min_group: int = 3
     # A moving object carries its tracks along, so tracks that lived through the whole window unflagged are
     # static evidence: a hull where they outnumber the flagged tracks is scattered noise (water, a crowd,
@@ -93,19 +93,19 @@ class MotionFrontEndConfig:
     dense_gap: int = 1
     dense_width: int = 640
     # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: DIS
-    # extrapolates there, and in a turn the band entering the view came out moving (README).
+    # extrapolates there, and in a turn the band entering the view came out moving (docs/experiments.md).
     dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
         residual_threshold_px=1.0, residual_noise_factor=5.0, border_fraction=0.05))
     # The dense residual that corroborates a track's epipolar distance (``TrackMotionConfig.corroboration``) is
     # the largest within this many pixels of it at the dense width; where it reaches ``corroboration_floor`` of
     # the dense threshold it corroborates any distance (DIS at the dense width blurs a small far mover into
-    # the background around it, and its residual comes out a fraction of its tracks'; README).
+    # the background around it, and its residual comes out a fraction of its tracks'; docs/experiments.md).
     corroboration_floor: float = 0.25
     corroboration_reach: int = 2
     # The ground's shortfall test (``TrackMotionConfig.shortfall_px``) takes a track only where at least this
     # share of the image-gradient energy in a window of this many pixels (at the dense width) around it lies
     # along its parallax (``aperture_share``, from the principal point): tracks on kerbs and shadow edges near
-    # the horizon came out farther than the road (README). 0: every track.
+    # the horizon came out farther than the road (docs/experiments.md). 0: every track.
     aperture_share: float = 0.25
     aperture_window: int = 7
     min_region_area: int = 80
@@ -116,25 +116,25 @@ class MotionFrontEndConfig:
     dense_cheir_px: float = 1.0
     # The footing test on every pixel of the dense flow (core/track_motion.nearer_than_road, with the track test's
     # footing settings): a far oncoming car holds few tracks, and the first road track under it lies well below
-    # the road it stands on (README).
+    # the road it stands on (docs/experiments.md).
     dense_footing: bool = True
     # Its least excess over the footing, in the dense flow's pixels over ``dense_gap`` frames: a far oncoming car
     # moves 2-4 px a frame at 640 px, and the track test's 1 px (at full size over two frames) stopped it; 0.25 is
-    # about that 1 px in these units (README).
+    # about that 1 px in these units (docs/experiments.md).
     dense_footing_px: float = 0.25
     # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
-    # whole last mask, which flagged more static pixels for the same recall (README).
+    # whole last mask, which flagged more static pixels for the same recall (docs/experiments.md).
     dense_hysteresis: bool = True
     # Moving tracks closer to the image's border than this share of its width are not drawn: there KLT's window
     # and pyramid are clipped and what enters or leaves the view has half its support (KITTI 07's remaining
-    # false hulls in its turn were there; README).
+    # false hulls in its turn were there; docs/experiments.md).
     track_border: float = 0.03
     # The flow view around each hull (core/object_flow.py): grows smooth bodies, trims swallowed background.
     # None: hulls as drawn.
     object_flow: ObjectFlowConfig | None = field(default_factory=ObjectFlowConfig)
     # Frames the moving evidence is remembered after it drops out (``remembered``). One bridges a lost frame;
     # each more frame catches more of the synthetic looming and crossing cars and carries more false regions on
-    # real streets (README). 0: off.
+    # real streets (docs/experiments.md). 0: off.
     memory_frames: int = 1
     memory_veto: int = 3
 
@@ -659,6 +659,6 @@ class MotionFrontEnd:
         if near is None:
             return moving
         # Gated as the residual is: on KITTI 07 the smooth panes of near parked cars' windows came out nearer than
-        # the road under them (README); an oncoming car's smooth body keeps its pixels near texture while its flow
-        # is small (``smooth_max_flow``).
+        # the road under them (docs/experiments.md); an oncoming car's smooth body keeps its pixels near texture
+        # while its flow is small (``smooth_max_flow``).
         return moving | (near if reliable is None else near & reliable)

@@ -62,7 +62,7 @@ class MovingObjects:
     # DIS balanced (medium's resolution) resolves the flow down to half the working size: small, fast movers (a
     # car crossing 35 m ahead moves 8-14 px a frame at 621 px, and is 15 px tall) come out of the fast preset's
     # quarter-size flow as background. It costs the frame path and the refit more time than fast; fast stays a
-    # setting for speed (the README has the presets' figures).
+    # setting for speed (docs/experiments.md has the presets' figures).
     flow_preset = "balanced"
 
     def __init__(self, config: PipelineConfig) -> None:
