@@ -545,9 +545,11 @@ class TestDenseCorroboration:
         before[moving] += 2.5 * cls._across(now[moving])
         ids = np.arange(len(now))
         base = MotionFrontEndConfig(dense_width=w, corroboration_floor=floor)
-        # No epipole allowance: the drift is also a small share of these near tracks' displacement, and this
-        # class is about the corroboration alone.
+        # No epipole allowance and no ground tests (this flow has no ground: points below the epipole lie at any
+        # depth): the drift is also a small share of these near tracks' displacement, and this class is about the
+        # corroboration alone.
         config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf,
+                                                    shortfall_px=np.inf, shortfall_strong_px=0.0,
                                                     corroboration=corroboration, epipole_allowance=0.0))
         K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
         gray = rng.integers(0, 255, cls.SIZE).astype(np.uint8)

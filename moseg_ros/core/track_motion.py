@@ -123,6 +123,12 @@ class TrackMotionConfig:
     # this many pixels and below this share of it.
     shortfall_px: float = 1.0
     shortfall_ratio: float = 0.6
+    # A track short by this many pixels needs only this share of the floor: the 0.6 guards against a floor read
+    # at the wrong row (the road in front of an object taken for its foot), an error of a share that shrinks as
+    # the parallax grows (a row more or less matters less below the horizon than near it), while a pedestrian
+    # walking away keeps 0.7-0.9 of the road's parallax. 0: off.
+    shortfall_strong_px: float = 4.0
+    shortfall_strong_ratio: float = 0.9
     # The shortfall is measured at the row the track's object stands on: the lowest track of its column at its own
     # inverse depth within this share (a looser bound lets the road in front of a static object pass for it).
     shortfall_same_depth: float = 0.1
@@ -481,14 +487,20 @@ def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | 
                        columns: FootingColumns | None = None) -> np.ndarray | None:
     """(N,) float32 pixels by which each track falls short of the ground where it stands by both of the shortfall
     test's measures: min(floor - signed - ``shortfall_px``, ``shortfall_ratio`` x floor - signed), the floor
-    being ``ground_floor`` at its ``standing_rows``. Positive: farther than the ground there by more than
-    ``shortfall_px`` and below ``shortfall_ratio`` of it (one pair's verdict on both, so that the window's
-    majority, ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``. ``columns``:
-    the pair's ``footing_columns`` when the caller has them."""
+    being ``ground_floor`` at its ``standing_rows``, or by both of its strong measures (``shortfall_strong_px``
+    and ``shortfall_strong_ratio``) where that is more. Positive: farther than the ground there by more than
+    ``shortfall_px`` and below ``shortfall_ratio`` of it, or by more than ``shortfall_strong_px`` and below
+    ``shortfall_strong_ratio`` of it (one pair's verdict on both, so that the window's majority,
+    ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``. ``columns``: the pair's
+    ``footing_columns`` when the caller has them."""
     floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config, columns))
     if floor is None:
         return None
-    margin = np.minimum(floor - parallax.signed - config.shortfall_px, config.shortfall_ratio * floor - parallax.signed)
+    short = floor - parallax.signed
+    margin = np.minimum(short - config.shortfall_px, short - (1.0 - config.shortfall_ratio) * floor)
+    if config.shortfall_strong_px > 0:
+        strong = np.minimum(short - config.shortfall_strong_px, short - (1.0 - config.shortfall_strong_ratio) * floor)
+        margin = np.maximum(margin, strong)
     return margin.astype(np.float32)
 
 
