@@ -42,7 +42,10 @@ and pixels rather than the ratio alone, whose low bar is set by the noise near t
 the row its object stands on (``standing_rows``: its column's lowest track at its own inverse depth) rather
 than at its own: a pedestrian crossing ahead walks nearly along the epipolar lines, towards the focus of
 expansion, and looks farther than the road under its feet from every one of its tracks, while the road at the
-rows of its upper tracks lies farther still. That test asks the track to measure its parallax at all
+rows of its upper tracks lies farther still. A shortfall of ``shortfall_strong_px`` or more needs only to be below
+``shortfall_strong_ratio`` of the floor: the 0.6 guards against a floor read at the wrong row, an error of a share
+that shrinks as the parallax grows, and a pedestrian walking away along the road keeps 0.7-0.9 of the road's
+parallax. That test asks the track to measure its parallax at all
 (``moving_tracks``' ``measurable``): on an edge that runs along the parallax (a kerb near the horizon) KLT cannot
 see motion along the edge, and its parallax comes out short (the aperture problem; ``aperture_share``).
 Whatever rides with the camera below the horizon (a vehicle's own bonnet in a dashcam's view) has no parallax
