@@ -862,6 +862,7 @@ class TestStandingRows:
         plain, strong = np.minimum(short - 1.0, short - 0.4 * floor), np.minimum(short - 4.0, short - 0.1 * floor)
         expected = np.maximum(plain, strong)
         np.testing.assert_allclose(standing_shortfall(x1, parallax, ground, config), expected, rtol=1e-5, atol=1e-4)
+        assert (strong > plain).any()  # the strong measure decides somewhere in this scene
 
     def test_a_slower_mover_is_short_only_by_the_strong_measures(self):
         # Going away at 0.4 of the camera's speed, 12 m ahead: it keeps about 0.7 of the floor's parallax where it
