@@ -499,12 +499,12 @@ def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | 
     floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config, columns))
     if floor is None:
         return None
-    short = floor - parallax.signed
-    margin = np.minimum(short - config.shortfall_px, short - (1.0 - config.shortfall_ratio) * floor)
+    # Each measure asks for the larger of its pixels and its share of the floor; the track meets the lesser ask.
+    needed = np.maximum(config.shortfall_px, (1.0 - config.shortfall_ratio) * floor)
     if config.shortfall_strong_px > 0:
-        strong = np.minimum(short - config.shortfall_strong_px, short - (1.0 - config.shortfall_strong_ratio) * floor)
-        margin = np.maximum(margin, strong)
-    return margin.astype(np.float32)
+        strong = np.maximum(config.shortfall_strong_px, (1.0 - config.shortfall_strong_ratio) * floor)
+        needed = np.minimum(needed, strong)
+    return (floor - parallax.signed - needed).astype(np.float32)
 
 
 def standing_rows(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
