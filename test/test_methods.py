@@ -8,6 +8,7 @@ import pytest
 from conftest import textured_frames
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.methods import DEFAULT_METHOD, METHODS, Decision, FrameInput, Status
+from moseg_ros.methods.moving_objects import held_instances, published_regions
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 
@@ -58,3 +59,57 @@ def test_the_default_method_takes_upstream_instances_as_its_objects():
         result = pipeline.process(frame, i * 100_000_000, instances)
     assert result.dynamic_ids.tolist() == [7]
     assert (result.masks.instance_labels[instances == 7] == 7).all()
+
+
+class TestPublishedRegions:
+    def test_smoke_and_shape(self):
+        labels = np.zeros((4, 6), dtype=np.int32)
+        labels[1:3, 2:4] = 5
+        regions = published_regions(labels, (8, 12), 0)
+        assert regions.shape == (8, 12) and regions.dtype == bool
+
+    def test_resized_without_margin_is_the_regions(self):
+        labels = np.zeros((4, 6), dtype=np.int32)
+        labels[1:3, 2:4] = 5
+        expected = np.zeros((8, 12), dtype=bool)
+        expected[2:6, 4:8] = True
+        np.testing.assert_array_equal(published_regions(labels, (8, 12), 0), expected)
+
+    def test_margin_grows_by_an_ellipse(self):
+        labels = np.zeros((7, 7), dtype=np.int32)
+        labels[3, 3] = 1
+        grown = published_regions(labels, (7, 7), 1)
+        expected = np.zeros((7, 7), dtype=bool)
+        expected[2:5, 3] = expected[3, 2:5] = True  # OpenCV's 3x3 ellipse is a cross
+        np.testing.assert_array_equal(grown, expected)
+
+
+class TestHeldInstances:
+    @staticmethod
+    def scene(share_7: float, share_3: float) -> tuple[np.ndarray, np.ndarray]:
+        """Two 10x10 instances (7 and 3) with the given share of their rows in the regions."""
+        instances = np.zeros((10, 30), dtype=np.int32)
+        instances[:, :10] = 7
+        instances[:, 20:] = 3
+        regions = np.zeros_like(instances, dtype=bool)
+        regions[:round(10 * share_7), :10] = True
+        regions[:round(10 * share_3), 20:] = True
+        return instances, regions
+
+    def test_an_instance_enters_at_the_min_fraction(self):
+        instances, regions = self.scene(0.5, 0.3)
+        assert held_instances(instances, regions, np.zeros(0, np.int32), 0.4, 0.1).tolist() == [7]
+
+    def test_a_held_instance_stays_above_the_hold_fraction_and_a_new_one_does_not_enter(self):
+        instances, regions = self.scene(0.2, 0.2)
+        held = np.array([7], dtype=np.int32)
+        assert held_instances(instances, regions, held, 0.4, 0.1).tolist() == [7]
+
+    def test_a_held_instance_leaves_below_the_hold_fraction(self):
+        instances, regions = self.scene(0.0, 0.5)
+        assert held_instances(instances, regions, np.array([7], np.int32), 0.4, 0.1).tolist() == [3]
+
+    def test_a_hold_at_the_min_fraction_holds_nothing(self):
+        instances, regions = self.scene(0.2, 0.0)
+        assert held_instances(instances, regions, np.array([7], np.int32), 0.4, 0.4).size == 0
+

@@ -4,8 +4,12 @@ The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` a
 camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex hulls,
 united with the dense flow's epipolar residual and cheirality at the working resolution; regions keep their ids
 over time. The cheirality tests use camera_info's K when it comes, a guessed one otherwise. Every region the
-front-end reports is flagged as moving. With upstream instances, they are the objects instead, and an instance
-moves when ``instance_min_fraction`` of its pixels hold the front-end's evidence.
+front-end reports is flagged as moving. With upstream instances, they are the objects instead: an instance moves
+when ``instance_min_fraction`` of its pixels lie in the regions the method would publish without them (the
+front-end's regions grown by the published margin, so that an instance never loses what the mask alone would have
+covered), and, once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance id: the
+evidence of a car passing the image's corner drops out as it leaves its tracks and the flow behind, the object
+does not).
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
@@ -80,6 +84,7 @@ class MovingObjects:
             self._worker.clear(self._front_end.reset)
         self._applied = -1
         self._warmed_up = False
+        self._held = np.zeros(0, dtype=np.int32)  # the upstream instance ids flagged the frame before
 
     def close(self) -> None:
         """Stop the refit worker, if any."""
@@ -95,7 +100,7 @@ class MovingObjects:
         labels = self._front_end.apply(refit)
         first = observation.index == 0
         if frame.instances is not None:
-            decision = self._decide_instances(frame.instances, first)
+            decision = self._decide_instances(frame.instances, labels, frame.full.shape[1], first)
         elif first or refit is None:
             decision = Decision(labels, status=Status.WARMUP)
         else:
@@ -152,13 +157,38 @@ class MovingObjects:
         if error is not None:
             raise RefitError.of(error)
 
-    def _decide_instances(self, instances: np.ndarray, first: bool) -> Decision:
+    def _decide_instances(self, instances: np.ndarray, labels: np.ndarray, full_width: int,
+                          first: bool) -> Decision:
+        """Upstream ``instances`` as the objects: ``instance_min_fraction`` of an instance in the regions the
+        method would publish (``labels`` grown by the margin, see ``published_regions``) flags it, and a flagged
+        instance stays flagged while ``instance_hold_fraction`` of it remains there."""
         if first:
+            self._held = np.zeros(0, dtype=np.int32)
             return Decision(instances, status=Status.WARMUP)
-        evidence = self._front_end.moving
-        if evidence.shape != instances.shape:
-            evidence = cv2.resize(evidence.astype(np.uint8), instances.shape[::-1],
-                                  interpolation=cv2.INTER_NEAREST) > 0
-        everywhere = np.ones(instances.shape, dtype=bool)
-        return Decision(instances, dynamic_instances(instances, evidence, everywhere,
-                                                     self.config.instance_min_fraction))
+        margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
+        regions = published_regions(labels, instances.shape, margin)
+        self._held = held_instances(instances, regions, self._held, self.config.instance_min_fraction,
+                                    self.config.instance_hold_fraction)
+        return Decision(instances, self._held)
+
+
+def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:
+    """(H, W) bool: the pixels of ``labels`` > 0 ((h, w) regions) at ``shape``, grown by ``margin_px`` (an
+    ellipse, as the published masks are grown): what the method publishes without instances."""
+    regions = (labels > 0).astype(np.uint8)
+    if regions.shape != shape:
+        regions = cv2.resize(regions, shape[::-1], interpolation=cv2.INTER_NEAREST)
+    if margin_px > 0:
+        regions = cv2.dilate(regions, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2))
+    return regions > 0
+
+
+def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray, min_fraction: float,
+                   hold_fraction: float) -> np.ndarray:
+    """(D,) int32 sorted ids of the (H, W) ``instances`` with ``min_fraction`` of their pixels in ``regions``
+    ((H, W) bool), and of the ``held`` ids (flagged the frame before) with ``hold_fraction`` of them there: a
+    hysteresis per id, as Canny's on edges (0: a held id stays while it is seen)."""
+    everywhere = np.ones(instances.shape, dtype=bool)
+    entering = dynamic_instances(instances, regions, everywhere, min_fraction)
+    staying = dynamic_instances(instances, regions, everywhere, hold_fraction)
+    return np.union1d(entering, np.intersect1d(staying, held)).astype(np.int32)

@@ -6,7 +6,8 @@ in a frame, after the first --skip frames) counts as flagged when at least --cov
 dynamic mask. With --instances (always for object_level) the exact instance maps are its upstream instances
 (what `use_instances` gives the node) and an object-frame is flagged when its id is among the frame's dynamic
 ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
-as name:flagged/seen, * = moving), the totals per kind of object and overall; --json writes them.
+as name:flagged/seen, * = moving), the totals per kind of object and overall, and how the published masks
+cover the moving objects' pixels over the scored frames (IoU, precision, recall); --json writes them.
 """
 
 from __future__ import annotations
@@ -37,12 +38,15 @@ def kitti_height(width: int) -> int:
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
                 min_area: int = 60, skip: int = 3, instances: bool = True,
-                cover: float = 0.5, live: float = 0.0) -> dict[str, dict[str, int | bool]]:
+                cover: float = 0.5, live: float = 0.0,
+                pixels: Counter[str] | None = None) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
     The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
     id among the dynamic ids); otherwise flagged = at least ``cover`` of the object's pixels in the mask.
-    ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline).
+    ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline). ``pixels``: when given,
+    the scored frames' pixel counts of the dynamic mask against the moving objects' pixels are added to it
+    (``tp``, ``fp``, ``fn``).
     """
     height = kitti_height(width)
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
@@ -56,6 +60,9 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
                                       next_frame_at=pacer.next_due)
             if t < skip:
                 continue
+            if pixels is not None:
+                pixels.update(pixel_counts(result.masks.dynamic > 0, np.isin(frame.instances,
+                                                                             list(sequence.dynamic_ids))))
             ids, areas = np.unique(frame.instances, return_counts=True)
             covered = np.bincount(frame.instances.ravel(), weights=(result.masks.dynamic > 0).ravel(),
                                   minlength=ids.max() + 1)[ids] / areas
@@ -66,6 +73,25 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
                 flagged[obj] += int(flag)
     return {sequence.object_names[obj]: {"moving": obj in sequence.dynamic_ids, "flagged": flagged[obj],
                                          "seen": seen[obj]} for obj in sorted(seen)}
+
+
+def pixel_counts(mask: np.ndarray, truth: np.ndarray) -> dict[str, int]:
+    """True positive, false positive and false negative pixels (``tp``, ``fp``, ``fn``) of a (H, W) bool
+    ``mask`` against the (H, W) bool ``truth``."""
+    return {"tp": int(np.count_nonzero(mask & truth)), "fp": int(np.count_nonzero(mask & ~truth)),
+            "fn": int(np.count_nonzero(~mask & truth))}
+
+
+def pixel_scores(pixels: Counter[str]) -> dict[str, float]:
+    """Pooled ``pixel_iou``, ``pixel_precision`` and ``pixel_recall`` of summed ``pixel_counts`` (NaN where a
+    denominator is 0)."""
+    tp, fp, fn = pixels["tp"], pixels["fp"], pixels["fn"]
+    return {"pixel_iou": _share(tp, tp + fp + fn), "pixel_precision": _share(tp, tp + fp),
+            "pixel_recall": _share(tp, tp + fn)}
+
+
+def _share(part: int, whole: int) -> float:
+    return part / whole if whole else float("nan")
 
 
 def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
@@ -126,17 +152,18 @@ def run(args: argparse.Namespace) -> int:
         print(f"moseg synth-eval: error: {error}", file=sys.stderr)
         return 2
     config = pipeline_config(args)
-    rows, scenes = [], []
+    rows, scenes, pixels = [], [], Counter()
     for preset in presets:
         for seed in range(args.seeds):
             scene = score_scene(preset, seed, config, n_frames=args.frames, width=args.width,
                                 min_area=args.min_area, skip=args.skip, cover=args.cover,
-                                instances=args.instances or config.method == "object_level", live=args.live)
+                                instances=args.instances or config.method == "object_level", live=args.live,
+                                pixels=pixels)
             scenes.append(scene)
             rows.append({"preset": preset, "seed": seed, "objects": scene})
             print(f"{preset:10s} {seed:2d}  " + " ".join(
                 f"{name}{'*' if o['moving'] else ''}:{o['flagged']}/{o['seen']}" for name, o in scene.items()))
-    total = totals(scenes)
+    total = {**totals(scenes), **pixel_scores(pixels)}
     kinds = by_object(scenes)
     print("by object: " + ", ".join(f"{kind}{'*' if o['moving'] else ''} {o['flagged']}/{o['seen']}"
                                     for kind, o in kinds.items()))
@@ -144,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
           f"({100 * total['moving_flagged_fraction']:.1f} %), static object-frames flagged "
           f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
           f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
+    print(f"moving pixels: IoU {total['pixel_iou']:.3f}, precision {total['pixel_precision']:.3f}, "
+          f"recall {total['pixel_recall']:.3f} (the published masks over the scored frames)")
     if args.json:
         args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live},
                                         indent=2))
