@@ -115,12 +115,13 @@ def make_demo_bag(path: Path, *, scenario: str, seed: int, frames: int) -> dict[
 
 def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int = 0, frames: int = 60,
              domain_id: int = 42, regenerate: bool = False, rate: float = 1.0,
-             method: str = DEFAULT_METHOD) -> dict[str, Any]:
+             method: str = DEFAULT_METHOD, instances: bool = False) -> dict[str, Any]:
     """Render (if needed), replay through the node, score and picture; returns the summary written.
 
     Any camera bag may stand in for the rendered street: without /gt/dynamic_mask its masks are not scored (the
-    summary has no scores). With method object_level the node runs with use_instances:=true and the bag's exact
-    instance maps (/gt/instances) stand in for an upstream instance segmenter.
+    summary has no scores). With ``instances`` (always for method object_level) the node runs with
+    use_instances:=true and the bag's exact instance maps (/gt/instances) stand in for an upstream instance
+    segmenter.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     if regenerate or not bag.exists():
@@ -129,22 +130,22 @@ def run_demo(out_dir: Path, bag: Path, *, scenario: str = "default", seed: int =
         make_demo_bag(bag, scenario=scenario, seed=seed, frames=frames)
     masks_bag = out_dir / "masks"
     shutil.rmtree(masks_bag, ignore_errors=True)
-    object_level = method == "object_level"
+    instances = instances or method == "object_level"
     # A replayed bag is offline work: the node's queue holds every frame and each waits for the worker however
     # long (none dropped or carried), so latency includes the wait whenever the method is slower than the bag.
     params = [f"method:={method}", *every_frame_params(min(max(frames, 4), 100))]
-    params += ["use_instances:=true"] if object_level else []
+    params += ["use_instances:=true"] if instances else []
     node = start_segmenter(domain_id, out_dir / "segmenter.log", params)
     try:
         report = replay(bag, masks_bag, domain_id=domain_id, rate=rate,
-                        instances_topic=GT_TOPICS["instances"] if object_level else None)
+                        instances_topic=GT_TOPICS["instances"] if instances else None)
     finally:
         exit_code = stop_segmenter(node)
     has_truth = GT_DYNAMIC_TOPIC in list_topics(bag)
     scores = score_bags(bag, masks_bag, MASK_TOPIC).summary() if has_truth else {}
     summary = {**report.summary(), **scores, "node_exit_code": exit_code, "bag": str(bag),
                "masks_bag": str(masks_bag), "scenario": scenario, "seed": seed, "replay_rate": rate,
-               "method": method}
+               "method": method, "instances": instances}
     summary.update(write_pictures(bag, masks_bag, out_dir, has_truth=has_truth))
     (out_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return summary
@@ -184,7 +185,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--regenerate", action="store_true", help="render the bag even if it exists")
     parser.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0 = 10 Hz)")
     parser.add_argument("--method", choices=METHODS, default=DEFAULT_METHOD,
-                        help="object_level: the node gets the bag's exact instance maps as upstream instances")
+                        help="the node's method (object_level always gets the instances)")
+    parser.add_argument("--instances", action="store_true",
+                        help="the node gets the bag's exact instance maps as upstream instances (use_instances)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -196,7 +199,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         summary = run_demo(args.out, args.bag, scenario=args.scenario, seed=args.seed, frames=args.frames,
-                           domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method)
+                           domain_id=args.domain, regenerate=args.regenerate, rate=args.rate, method=args.method,
+                           instances=args.instances)
     except (FileNotFoundError, ValueError) as error:  # a bag without a camera topic, or without /gt/instances
         print(f"moseg demo: error: {error}", file=sys.stderr)
         return 2
