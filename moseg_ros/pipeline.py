@@ -64,9 +64,9 @@ class PipelineConfig:
                                            "pixels)", low=0.01, high=1.0)
     instance_hold_fraction: float = setting(0.1, "moving_objects with instances: an instance flagged the frame "
                                             "before stays flagged while this share of it lies in those regions "
-                                            "(hysteresis per instance id: a car passing the image's corner keeps "
-                                            "its decision as its evidence drops out; at or above "
-                                            "instance_min_fraction: none)", low=0.0, high=1.0)
+                                            "(hysteresis, each instance followed by its overlap: a car passing the "
+                                            "image's corner keeps its decision as its evidence drops out; at or "
+                                            "above instance_min_fraction: none)", low=0.0, high=1.0)
     window_length: int = setting(8, "frames in the sliding window (moving_objects, object_level)", low=3, high=60)
     refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
     ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "

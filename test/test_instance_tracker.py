@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moseg_ros.frontend.instances import InstanceTracker, mask_iou_matrix, propose_regions
+from moseg_ros.frontend.instances import InstanceTracker, compact_ids, mask_iou_matrix, propose_regions
 
 
 def boxes(shape: tuple[int, int], *rects: tuple[int, int, int, int]) -> np.ndarray:
@@ -13,6 +13,17 @@ def boxes(shape: tuple[int, int], *rects: tuple[int, int, int, int]) -> np.ndarr
     for label, (y, x, h, w) in enumerate(rects, start=1):
         regions[y:y + h, x:x + w] = label
     return regions
+
+
+class TestCompactIds:
+    def test_known_values(self):
+        ids, compact = compact_ids(np.array([[7, -1], [3, 7]]))
+        assert ids.tolist() == [0, 3, 7]
+        assert compact.tolist() == [[2, 0], [1, 2]] and compact.dtype == np.int32
+
+    def test_a_map_without_none_numbers_from_one(self):
+        ids, compact = compact_ids(np.array([[5, 9]]))
+        assert ids.tolist() == [0, 5, 9] and compact.tolist() == [[1, 2]]
 
 
 class TestMaskIouMatrix:

@@ -8,7 +8,7 @@ import pytest
 from conftest import textured_frames
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.methods import DEFAULT_METHOD, METHODS, Decision, FrameInput, Status
-from moseg_ros.methods.moving_objects import held_instances, published_regions
+from moseg_ros.methods.moving_objects import InstanceDecisions, held_instances, published_regions
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 
@@ -113,3 +113,31 @@ class TestHeldInstances:
         instances, regions = self.scene(0.2, 0.0)
         assert held_instances(instances, regions, np.array([7], np.int32), 0.4, 0.4).size == 0
 
+
+
+class TestInstanceDecisions:
+    @staticmethod
+    def frame(id_left: int, id_right: int, share_left: float, share_right: float) -> tuple[np.ndarray, np.ndarray]:
+        """Two 10x10 instances side by side with the given ids and shares of their rows in the regions."""
+        instances = np.zeros((10, 30), dtype=np.int32)
+        instances[:, :10], instances[:, 20:] = id_left, id_right
+        regions = np.zeros_like(instances, dtype=bool)
+        regions[:round(10 * share_left), :10] = True
+        regions[:round(10 * share_right), 20:] = True
+        return instances, regions
+
+    def test_the_hold_follows_the_object_when_the_segmenter_renumbers_it(self):
+        decisions = InstanceDecisions(0.4, 0.1)
+        assert decisions.update(*self.frame(1, 2, 0.5, 0.0)).tolist() == [1]
+        # The next frame the segmenter swaps the ids: the left object, now 2, keeps its flag; 1 is another object.
+        assert decisions.update(*self.frame(2, 1, 0.2, 0.2)).tolist() == [2]
+
+    def test_reset_forgets_the_flags(self):
+        decisions = InstanceDecisions(0.4, 0.1)
+        decisions.update(*self.frame(1, 2, 0.5, 0.0))
+        decisions.reset()
+        assert decisions.update(*self.frame(1, 2, 0.2, 0.0)).size == 0
+
+    def test_negative_ids_are_no_instance(self):
+        instances, regions = self.frame(-1, 4, 1.0, 1.0)
+        assert InstanceDecisions(0.4, 0.1).update(instances, regions).tolist() == [4]

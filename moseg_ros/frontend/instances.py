@@ -34,6 +34,16 @@ def propose_regions(evidence: np.ndarray, min_area: int, close_px: int = 5) -> n
     return np.take(keep, labels)
 
 
+def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """An id map ((H, W) ints, 0 or below = none) renumbered 0..R: returns the (R + 1,) ids in order, the first
+    0 (none), and the (H, W) int32 map of each pixel's number (the InstanceTracker's input form)."""
+    values, inverse = np.unique(np.maximum(ids, 0), return_inverse=True)
+    compact = inverse.reshape(ids.shape).astype(np.int32)
+    if values[0] == 0:
+        return values, compact
+    return np.concatenate([[0], values]), compact + 1
+
+
 def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cur: int) -> np.ndarray:
     """IoU between every labelled region of two label maps, from one joint histogram.
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from moseg_ros.frontend.instances import InstanceTracker
+from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 
 
 def masks_to_ids(output: np.ndarray, threshold: float = 0.5) -> np.ndarray:
@@ -72,11 +72,4 @@ class TorchScriptInstances:
         ids = masks_to_ids(output.detach().cpu().numpy())
         if ids.shape != rgb.shape[:2]:
             ids = cv2.resize(ids, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
-        return self._tracker.update(_compact(ids))
-
-
-def _compact(ids: np.ndarray) -> np.ndarray:
-    """Ids renumbered 1..R in order (the tracker's input form)."""
-    values, inverse = np.unique(ids, return_inverse=True)
-    compact = inverse.reshape(ids.shape).astype(np.int32)
-    return compact if values[0] == 0 else compact + 1
+        return self._tracker.update(compact_ids(ids)[1])

@@ -7,9 +7,9 @@ over time. The cheirality tests use camera_info's K when it comes, a guessed one
 front-end reports is flagged as moving. With upstream instances, they are the objects instead: an instance moves
 when ``instance_min_fraction`` of its pixels lie in the regions the method would publish without them (the
 front-end's regions grown by the published margin, so that an instance never loses what the mask alone would have
-covered), and, once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance id: the
-evidence of a car passing the image's corner drops out as it leaves its tracks and the flow behind, the object
-does not).
+covered), and, once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance,
+followed by its overlap from frame to frame: the evidence of a car passing the image's corner drops out as it
+leaves its tracks and the flow behind, the object does not).
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
@@ -33,6 +33,7 @@ import numpy as np
 
 from moseg_ros.core.baseline import dynamic_instances
 from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
                                       scaled_to)
 from moseg_ros.methods.base import Decision, FrameInput, Status
@@ -71,6 +72,7 @@ class MovingObjects:
 
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
+        self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
         self._worker = (BackgroundRefit(self._front_end.refit, nice=config.refit_nice, duty=config.refit_duty)
                         if config.refit == "background" else None)
@@ -84,7 +86,7 @@ class MovingObjects:
             self._worker.clear(self._front_end.reset)
         self._applied = -1
         self._warmed_up = False
-        self._held = np.zeros(0, dtype=np.int32)  # the upstream instance ids flagged the frame before
+        self._instance_decisions.reset()
 
     def close(self) -> None:
         """Stop the refit worker, if any."""
@@ -159,18 +161,14 @@ class MovingObjects:
 
     def _decide_instances(self, instances: np.ndarray, labels: np.ndarray, full_width: int,
                           first: bool) -> Decision:
-        """Upstream ``instances`` as the objects: ``instance_min_fraction`` of an instance in the regions the
-        method would publish (``labels`` grown by the margin, see ``published_regions``) flags it, and a flagged
-        instance stays flagged while ``instance_hold_fraction`` of it remains there."""
+        """Upstream ``instances`` as the objects, judged by the regions the method would publish (``labels``
+        grown by the margin, see ``published_regions``) with a hold (``InstanceDecisions``)."""
         if first:
-            self._held = np.zeros(0, dtype=np.int32)
+            self._instance_decisions.reset()
             return Decision(instances, status=Status.WARMUP)
         margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
         regions = published_regions(labels, instances.shape, margin)
-        self._held = held_instances(instances, regions, self._held, self.config.instance_min_fraction,
-                                    self.config.instance_hold_fraction)
-        return Decision(instances, self._held)
-
+        return Decision(instances, self._instance_decisions.update(instances, regions))
 
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:
     """(H, W) bool: the pixels of ``labels`` > 0 ((h, w) regions) at ``shape``, grown by ``margin_px`` (an
@@ -192,3 +190,31 @@ def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray,
     entering = dynamic_instances(instances, regions, everywhere, min_fraction)
     staying = dynamic_instances(instances, regions, everywhere, hold_fraction)
     return np.union1d(entering, np.intersect1d(staying, held)).astype(np.int32)
+
+
+class InstanceDecisions:
+    """Which upstream instances move, frame after frame: ``min_fraction`` of an instance in the method's regions
+    flags it, and a flagged instance stays flagged while ``hold_fraction`` of it remains there (``held_instances``).
+    The hold follows each instance by its overlap with the frame before (InstanceTracker), not by its id: a
+    segmenter that numbers its instances afresh every frame would hand a held id to another object."""
+
+    def __init__(self, min_fraction: float, hold_fraction: float) -> None:
+        self.min_fraction = min_fraction
+        self.hold_fraction = hold_fraction
+        self._identities = InstanceTracker()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every instance and its flag (a new stream)."""
+        self._identities.reset()
+        self._held = np.zeros(0, dtype=np.int32)  # the identities flagged the frame before
+
+    def update(self, instances: np.ndarray, regions: np.ndarray) -> np.ndarray:
+        """(D,) int32 sorted ids of the (H, W) ``instances`` (0 or below: none) that move, given the frame's
+        (H, W) bool ``regions``."""
+        ids, compact = compact_ids(instances)
+        identity = self._identities.update(compact)
+        identity_of_id = np.zeros(ids.size, dtype=np.int32)
+        identity_of_id[compact.ravel()] = identity.ravel()
+        self._held = held_instances(identity, regions, self._held, self.min_fraction, self.hold_fraction)
+        return ids[np.isin(identity_of_id, self._held) & (ids > 0)].astype(np.int32)
