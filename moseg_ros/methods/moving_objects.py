@@ -170,6 +170,7 @@ class MovingObjects:
         regions = published_regions(labels, instances.shape, margin)
         return Decision(instances, self._instance_decisions.update(instances, regions))
 
+
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:
     """(H, W) bool: the pixels of ``labels`` > 0 ((h, w) regions) at ``shape``, grown by ``margin_px`` (an
     ellipse, as the published masks are grown): what the method publishes without instances."""
@@ -185,7 +186,7 @@ def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray,
                    hold_fraction: float) -> np.ndarray:
     """(D,) int32 sorted ids of the (H, W) ``instances`` with ``min_fraction`` of their pixels in ``regions``
     ((H, W) bool), and of the ``held`` ids (flagged the frame before) with ``hold_fraction`` of them there: a
-    hysteresis per id, as Canny's on edges (0: a held id stays while it is seen)."""
+    hysteresis per id, as Canny's on edges (0: a held id stays while it is seen, 20 pixels or more)."""
     everywhere = np.ones(instances.shape, dtype=bool)
     entering = dynamic_instances(instances, regions, everywhere, min_fraction)
     staying = dynamic_instances(instances, regions, everywhere, hold_fraction)
