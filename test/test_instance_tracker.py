@@ -25,6 +25,12 @@ class TestCompactIds:
         ids, compact = compact_ids(np.array([[5, 9]]))
         assert ids.tolist() == [0, 5, 9] and compact.tolist() == [[1, 2]]
 
+    def test_hashed_ids_beyond_the_table_number_the_same(self):
+        small = np.array([[7, 0], [3, 7]])
+        ids, compact = compact_ids(small * 10_000_019)  # beyond DENSE_IDS: ranked instead of tabled
+        assert ids.tolist() == [0, 30_000_057, 70_000_133]
+        np.testing.assert_array_equal(compact, compact_ids(small)[1])
+
 
 class TestMaskIouMatrix:
     def test_known_values(self):
