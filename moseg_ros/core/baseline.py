@@ -155,10 +155,12 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
 
 # Instance ids up to this are counted in a table indexed by id; larger ones (an upstream segmenter's hashes) by rank.
 DENSE_IDS = 1 << 16
+# Instances with fewer valid pixels are left undecided (not dynamic).
+MIN_INSTANCE_PIXELS = 20
 
 
 def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarray,
-                      min_fraction: float = 0.3, min_pixels: int = 20) -> np.ndarray:
+                      min_fraction: float = 0.3, min_pixels: int = MIN_INSTANCE_PIXELS) -> np.ndarray:
     """Instance ids of which a large enough share of reliable pixels moves independently.
 
     Args:
@@ -171,6 +173,16 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     Returns:
         (D,) int32 sorted ids of the dynamic instances.
     """
+    ids, fraction, valid_count = instance_shares(instances, moving, valid)
+    return ids[(fraction >= min_fraction) & (valid_count >= min_pixels)]
+
+
+def instance_shares(instances: np.ndarray, moving: np.ndarray,
+                    valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per positive instance id of the (H, W) ``instances`` (``dynamic_instances``' arguments): its (K,) int32
+    sorted ids, the (K,) share of each one's ``valid`` pixels that are ``moving``, and the (K,) count of its
+    valid pixels. Ids up to ``DENSE_IDS`` are counted in a table (an id in it but not in the map has no valid
+    pixels); larger ones by rank among the ids present."""
     ids = instances.ravel()
     counted = valid.ravel() & (ids > 0)  # ids <= 0 are background, never counted
     present = None
@@ -181,6 +193,6 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
     valid_count = np.bincount(ids[counted], minlength=n)
     moving_count = np.bincount(ids[counted & moving.ravel()], minlength=n)
     fraction = moving_count / np.maximum(valid_count, 1)
-    dynamic = (fraction >= min_fraction) & (valid_count >= min_pixels)
-    found = np.flatnonzero(dynamic) if present is None else present[dynamic]
-    return found[found > 0].astype(np.int32)
+    numbers = np.arange(n) if present is None else present
+    positive = numbers > 0
+    return numbers[positive].astype(np.int32), fraction[positive], valid_count[positive]

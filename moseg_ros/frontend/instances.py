@@ -94,6 +94,11 @@ class InstanceTracker:
     def update(self, regions: np.ndarray) -> np.ndarray:
         """Relabel ``regions`` ((H, W) int32, 0 = none and 1..R each present) with persistent ids; returns
         (H, W) int32."""
+        return np.take(self.assign(regions), regions)
+
+    def assign(self, regions: np.ndarray) -> np.ndarray:
+        """The persistent id of each region of ``regions`` (``update``'s input) as a (R + 1,) int32 table, 0 for
+        none; the tracker moves on to this frame as ``update`` does."""
         n_cur = int(regions.max(initial=0))
         ids = np.zeros(n_cur + 1, dtype=np.int32)
         if self._previous is not None and self._previous[0].shape == regions.shape and n_cur:
@@ -108,4 +113,4 @@ class InstanceTracker:
         self._next_id += fresh.size
         self._previous = (regions, ids[1:])
         self.ages = {int(i): self.ages.get(int(i), 0) + 1 for i in ids[1:]}
-        return np.take(ids, regions)
+        return ids

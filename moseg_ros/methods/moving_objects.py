@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from moseg_ros.core.baseline import dynamic_instances
+from moseg_ros.core.baseline import MIN_INSTANCE_PIXELS, instance_shares
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
@@ -163,8 +163,7 @@ class MovingObjects:
                           first: bool) -> Decision:
         """Upstream ``instances`` as the objects, judged by the regions the method would publish (``labels``
         grown by the margin, see ``published_regions``) with a hold (``InstanceDecisions``)."""
-        if first:
-            self._instance_decisions.reset()
+        if first:  # the method's reset, which comes with every first frame, forgot the held instances
             return Decision(instances, status=Status.WARMUP)
         margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
         regions = published_regions(labels, instances.shape, margin)
@@ -186,11 +185,10 @@ def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray,
                    hold_fraction: float) -> np.ndarray:
     """(D,) int32 sorted ids of the (H, W) ``instances`` with ``min_fraction`` of their pixels in ``regions``
     ((H, W) bool), and of the ``held`` ids (flagged the frame before) with ``hold_fraction`` of them there: a
-    hysteresis per id, as Canny's on edges (0: a held id stays while it is seen, 20 pixels or more)."""
-    everywhere = np.ones(instances.shape, dtype=bool)
-    entering = dynamic_instances(instances, regions, everywhere, min_fraction)
-    staying = dynamic_instances(instances, regions, everywhere, hold_fraction)
-    return np.union1d(entering, np.intersect1d(staying, held)).astype(np.int32)
+    hysteresis per id, as Canny's on edges (0: a held id stays while it is seen, ``MIN_INSTANCE_PIXELS`` or more)."""
+    ids, share, pixels = instance_shares(instances, regions, np.ones(instances.shape, dtype=bool))
+    seen = pixels >= MIN_INSTANCE_PIXELS
+    return ids[seen & ((share >= min_fraction) | ((share >= hold_fraction) & np.isin(ids, held)))]
 
 
 class InstanceDecisions:
@@ -214,8 +212,8 @@ class InstanceDecisions:
         """(D,) int32 sorted ids of the (H, W) ``instances`` (0 or below: none) that move, given the frame's
         (H, W) bool ``regions``."""
         ids, compact = compact_ids(instances)
-        identity = self._identities.update(compact)
-        identity_of_id = np.zeros(ids.size, dtype=np.int32)
-        identity_of_id[compact.ravel()] = identity.ravel()
-        self._held = held_instances(identity, regions, self._held, self.min_fraction, self.hold_fraction)
-        return ids[np.isin(identity_of_id, self._held) & (ids > 0)].astype(np.int32)
+        identity = self._identities.assign(compact)  # of each number of ``compact``
+        held = np.flatnonzero(np.isin(identity, self._held))
+        moving = held_instances(compact, regions, held, self.min_fraction, self.hold_fraction)
+        self._held = identity[moving]
+        return ids[moving].astype(np.int32)
