@@ -67,6 +67,9 @@ class PipelineConfig:
                                             "(hysteresis, each instance followed by its overlap: a car passing the "
                                             "image's corner keeps its decision as its evidence drops out; at or "
                                             "above instance_min_fraction: none)", low=0.0, high=1.0)
+    instance_unknown_regions: bool = setting(True, "moving_objects with instances: also publish the method's own "
+                                             "regions that lie mostly outside every instance (movers the instance "
+                                             "source does not know), with ids from 2**30 up")
     window_length: int = setting(8, "frames in the sliding window (moving_objects, object_level)", low=3, high=60)
     refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
     ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "

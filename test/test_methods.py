@@ -8,7 +8,8 @@ import pytest
 from conftest import textured_frames
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.methods import DEFAULT_METHOD, METHODS, Decision, FrameInput, Status
-from moseg_ros.methods.moving_objects import InstanceDecisions, held_instances, published_regions
+from moseg_ros.methods.moving_objects import (OWN_REGION_BASE, InstanceDecisions, held_instances,
+                                              published_regions, with_unknown_regions)
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 
@@ -141,3 +142,47 @@ class TestInstanceDecisions:
     def test_negative_ids_are_no_instance(self):
         instances, regions = self.frame(-1, 4, 1.0, 1.0)
         assert InstanceDecisions(0.4, 0.1).update(instances, regions).tolist() == [4]
+
+
+class TestWithUnknownRegions:
+    @staticmethod
+    def scene() -> tuple[np.ndarray, np.ndarray]:
+        """A 10x30 map with instance 5 on the left third; region 2 lies on it, region 3 mostly beside it (a third of
+        it on the instance), region 4 on the right third, on no instance."""
+        instances = np.zeros((10, 30), dtype=np.int32)
+        instances[:, :10] = 5
+        labels = np.zeros_like(instances)
+        labels[:5, :9] = 2
+        labels[6:, 8:14] = 3
+        labels[:, 22:] = 4
+        return instances, labels
+
+    def test_smoke_and_shape(self):
+        combined, ids = with_unknown_regions(*self.scene())
+        assert combined.shape == (10, 30) and combined.dtype == np.int32 and ids.dtype == np.int32
+
+    def test_regions_mostly_outside_every_instance_are_painted_where_no_instance_is(self):
+        instances, labels = self.scene()
+        combined, ids = with_unknown_regions(instances, labels)
+        assert ids.tolist() == [OWN_REGION_BASE + 3, OWN_REGION_BASE + 4]
+        assert (combined[instances == 5] == 5).all()  # the instance keeps its pixels, region 3's third included
+        assert (combined[(labels == 3) & (instances == 0)] == OWN_REGION_BASE + 3).all()
+        assert (combined[labels == 4] == OWN_REGION_BASE + 4).all()
+        assert not np.isin(combined, OWN_REGION_BASE + 2).any()  # region 2 lies on the instance: its decision
+
+    def test_nothing_outside_leaves_the_instances_as_they_are(self):
+        instances, labels = self.scene()
+        combined, ids = with_unknown_regions(instances, np.where(labels == 2, 2, 0))
+        assert ids.size == 0 and combined is instances
+
+    def test_ids_start_above_a_segmenters_largest(self):
+        instances, labels = self.scene()
+        instances[instances == 5] = OWN_REGION_BASE + 100  # a segmenter's hashed ids
+        _, ids = with_unknown_regions(instances, labels)
+        assert ids.tolist() == [OWN_REGION_BASE + 104, OWN_REGION_BASE + 105]
+
+    def test_regions_at_another_size_are_resized(self):
+        instances, labels = self.scene()
+        small = labels[::2, ::2]  # (5, 15): each label keeps its place
+        _, ids = with_unknown_regions(instances, small)
+        assert ids.tolist() == [OWN_REGION_BASE + 3, OWN_REGION_BASE + 4]

@@ -9,7 +9,9 @@ when ``instance_min_fraction`` of its pixels lie in the regions the method would
 front-end's regions grown by the published margin, so that an instance never loses what the mask alone would have
 covered), and, once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance,
 followed by its overlap from frame to frame: the evidence of a car passing the image's corner drops out as it
-leaves its tracks and the flow behind, the object does not).
+leaves its tracks and the flow behind, the object does not). With ``instance_unknown_regions`` the method's own
+regions that lie mostly outside every instance are published beside them (``with_unknown_regions``): a segmenter
+that does not know a kind of mover takes nothing away from what the method finds alone.
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
@@ -167,7 +169,11 @@ class MovingObjects:
             return Decision(instances, status=Status.WARMUP)
         margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
         regions = published_regions(labels, instances.shape, margin)
-        return Decision(instances, self._instance_decisions.update(instances, regions))
+        moving = self._instance_decisions.update(instances, regions)
+        if not self.config.instance_unknown_regions:
+            return Decision(instances, moving)
+        combined, own = with_unknown_regions(instances, labels)
+        return Decision(combined, np.concatenate([moving, own]))
 
 
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:
@@ -179,6 +185,32 @@ def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int
     if margin_px > 0:
         regions = cv2.dilate(regions, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1,) * 2))
     return regions > 0
+
+
+# The ids of the method's own regions published beside upstream instances start here, far above a segmenter's
+# numbering (with_unknown_regions), so that a region keeps the id its tracker gave it from frame to frame.
+OWN_REGION_BASE = 2 ** 30
+
+
+def with_unknown_regions(instances: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (H, W) ``instances`` with the method's own regions (``labels`` (h, w) > 0, its tracked region ids at its
+    own size) that lie mostly outside every instance painted where no instance is, as ``OWN_REGION_BASE`` + their
+    id (above the frame's largest instance id when a segmenter's ids reach that far); returns the map (int32) and
+    the (R,) int32 ids painted. These are movers the instance source does not know (a class its model never
+    learned, an object it missed); a region that lies mostly on instances is theirs to decide."""
+    if labels.shape != instances.shape:
+        labels = cv2.resize(labels, instances.shape[::-1], interpolation=cv2.INTER_NEAREST)
+    count = int(labels.max(initial=0)) + 1
+    on_instances = np.bincount(labels[instances > 0], minlength=count)
+    area = np.bincount(labels.ravel(), minlength=count)
+    outside = (area > 0) & (2 * on_instances < area)
+    outside[0] = False
+    if not outside.any():
+        return instances, np.zeros(0, dtype=np.int32)
+    base = max(OWN_REGION_BASE, int(instances.max(initial=0)) + 1)
+    painted = outside[labels] & (instances <= 0)
+    combined = np.where(painted, base + labels, instances).astype(np.int32)
+    return combined, np.unique(combined[painted]).astype(np.int32)
 
 
 def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray, min_fraction: float,

@@ -38,26 +38,30 @@ def kitti_height(width: int) -> int:
 
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
                 min_area: int = 60, skip: int = 3, instances: bool = True,
-                cover: float = 0.5, live: float = 0.0,
-                pixels: Counter[str] | None = None) -> dict[str, dict[str, int | bool]]:
+                cover: float = 0.5, live: float = 0.0, pixels: Counter[str] | None = None,
+                withheld: tuple[str, ...] = ()) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
     The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
     id among the dynamic ids); otherwise flagged = at least ``cover`` of the object's pixels in the mask.
     ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline). ``pixels``: when given,
     the scored frames' pixel counts of the dynamic mask against the moving objects' pixels are added to it
-    (``tp``, ``fp``, ``fn``).
+    (``tp``, ``fp``, ``fn``). ``withheld``: with ``instances``, the objects whose names start with one of these are
+    left out of the instance maps (a segmenter that does not know them) and flagged by ``cover``.
     """
     height = kitti_height(width)
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
+    unknown = [obj for obj, name in sequence.object_names.items() if name.startswith(withheld)] if withheld else []
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t, frame in enumerate(sequence.frames):
             pacer.wait()
-            result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances if instances else None,
-                                      next_frame_at=pacer.next_due)
+            given = None
+            if instances:
+                given = np.where(np.isin(frame.instances, unknown), 0, frame.instances) if unknown else frame.instances
+            result = pipeline.process(frame.rgb, frame.stamp_ns, given, next_frame_at=pacer.next_due)
             if t < skip:
                 continue
             if pixels is not None:
@@ -67,6 +71,8 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
             covered = np.bincount(frame.instances.ravel(), weights=(result.masks.dynamic > 0).ravel(),
                                   minlength=ids.max() + 1)[ids] / areas
             hit = np.isin(ids, result.dynamic_ids) if instances else covered >= cover
+            if unknown:
+                hit = np.where(np.isin(ids, unknown), covered >= cover, hit)
             counted = (ids > 0) & (areas >= min_area)
             for obj, flag in zip(ids[counted].tolist(), hit[counted].tolist()):
                 seen[obj] += 1
@@ -129,6 +135,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--width", type=int, default=621, help="image width; the height keeps KITTI's aspect ratio")
     parser.add_argument("--instances", action="store_true",
                         help="give the pipeline the exact instance maps (always so for object_level)")
+    parser.add_argument("--withhold", action="append", default=[], metavar="NAME",
+                        help="with --instances: leave the objects whose names start with NAME (car_crossing, "
+                             "pedestrian, ...) out of the given instance maps, as a segmenter that does not know "
+                             "them; they are flagged by --cover (repeatable)")
     parser.add_argument("--cover", type=float, default=0.5,
                         help="without --instances: share of an object's pixels in the mask that flags it")
     add_settings_arguments(parser)  # e.g. --set flow_preset=fast, --set ground_contact=false
@@ -152,13 +162,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"moseg synth-eval: error: {error}", file=sys.stderr)
         return 2
     config = pipeline_config(args)
+    if args.withhold and not (args.instances or config.method == "object_level"):
+        print("moseg synth-eval: error: --withhold leaves objects out of the instance maps; give --instances",
+              file=sys.stderr)
+        return 2
     rows, scenes, pixels = [], [], Counter()
     for preset in presets:
         for seed in range(args.seeds):
             scene = score_scene(preset, seed, config, n_frames=args.frames, width=args.width,
                                 min_area=args.min_area, skip=args.skip, cover=args.cover,
                                 instances=args.instances or config.method == "object_level", live=args.live,
-                                pixels=pixels)
+                                pixels=pixels, withheld=tuple(args.withhold))
             scenes.append(scene)
             rows.append({"preset": preset, "seed": seed, "objects": scene})
             print(f"{preset:10s} {seed:2d}  " + " ".join(
