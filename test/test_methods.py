@@ -181,6 +181,13 @@ class TestWithUnknownRegions:
         _, ids = with_unknown_regions(instances, labels)
         assert ids.tolist() == [OWN_REGION_BASE + 104, OWN_REGION_BASE + 105]
 
+    def test_ids_at_the_top_of_int32_leave_the_smallest_free_ids(self):
+        instances, labels = self.scene()
+        instances[instances == 5] = np.iinfo(np.int32).max
+        instances[0, 15] = 1  # id 1 is taken
+        combined, ids = with_unknown_regions(instances, labels)
+        assert ids.tolist() == [2, 3] and (combined[labels == 4] == 3).all()
+
     def test_regions_at_another_size_are_resized(self):
         instances, labels = self.scene()
         small = labels[::2, ::2]  # (5, 15): each label keeps its place

@@ -195,7 +195,8 @@ OWN_REGION_BASE = 2 ** 30
 def with_unknown_regions(instances: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The (H, W) ``instances`` with the method's own regions (``labels`` (h, w) > 0, its tracked region ids at its
     own size) that lie mostly outside every instance painted where no instance is, as ``OWN_REGION_BASE`` + their
-    id (above the frame's largest instance id when a segmenter's ids reach that far); returns the map (int32) and
+    id (above the frame's largest instance id when a segmenter's ids reach that far; the smallest ids no instance
+    has when they reach the top of int32); returns the map (int32) and
     the (R,) int32 ids painted. These are movers the instance source does not know (a class its model never
     learned, an object it missed); a region that lies mostly on instances is theirs to decide."""
     if labels.shape != instances.shape:
@@ -207,9 +208,13 @@ def with_unknown_regions(instances: np.ndarray, labels: np.ndarray) -> tuple[np.
     outside[0] = False
     if not outside.any():
         return instances, np.zeros(0, dtype=np.int32)
-    base = max(OWN_REGION_BASE, int(instances.max(initial=0)) + 1)
+    own_ids = max(OWN_REGION_BASE, int(instances.max(initial=0)) + 1) + np.arange(count, dtype=np.int64)
+    if own_ids[-1] > np.iinfo(np.int32).max:  # a segmenter's ids reach the top of int32: the smallest free ones
+        taken = np.unique(instances)
+        own_ids = np.zeros(count, dtype=np.int64)
+        own_ids[outside] = np.setdiff1d(np.arange(1, taken.size + count + 1), taken)[:int(outside.sum())]
     painted = outside[labels] & (instances <= 0)
-    combined = np.where(painted, base + labels, instances).astype(np.int32)
+    combined = np.where(painted, own_ids[labels], instances).astype(np.int32)
     return combined, np.unique(combined[painted]).astype(np.int32)
 
 
