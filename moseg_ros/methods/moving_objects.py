@@ -196,9 +196,9 @@ def with_unknown_regions(instances: np.ndarray, labels: np.ndarray) -> tuple[np.
     """The (H, W) ``instances`` with the method's own regions (``labels`` (h, w) > 0, its tracked region ids at its
     own size) that lie mostly outside every instance painted where no instance is, as ``OWN_REGION_BASE`` + their
     id (above the frame's largest instance id when a segmenter's ids reach that far; the smallest ids no instance
-    has when they reach the top of int32); returns the map (int32) and
-    the (R,) int32 ids painted. These are movers the instance source does not know (a class its model never
-    learned, an object it missed); a region that lies mostly on instances is theirs to decide."""
+    has when they reach the top of int32); returns the map (int32) and the (R,) int32 ids painted. These are
+    movers the instance source does not know (a class its model never learned, an object it missed); a region
+    that lies mostly on instances is theirs to decide."""
     if labels.shape != instances.shape:
         labels = cv2.resize(labels, instances.shape[::-1], interpolation=cv2.INTER_NEAREST)
     count = int(labels.max(initial=0)) + 1
@@ -214,8 +214,10 @@ def with_unknown_regions(instances: np.ndarray, labels: np.ndarray) -> tuple[np.
         own_ids = np.zeros(count, dtype=np.int64)
         own_ids[outside] = np.setdiff1d(np.arange(1, taken.size + count + 1), taken)[:int(outside.sum())]
     painted = outside[labels] & (instances <= 0)
-    combined = np.where(painted, own_ids[labels], instances).astype(np.int32)
-    return combined, np.unique(combined[painted]).astype(np.int32)
+    combined = instances.astype(np.int32, copy=True)
+    combined[painted] = own_ids[labels[painted]]
+    shown = np.bincount(labels[painted], minlength=count) > 0
+    return combined, own_ids[shown].astype(np.int32)
 
 
 def held_instances(instances: np.ndarray, regions: np.ndarray, held: np.ndarray, min_fraction: float,
