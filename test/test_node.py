@@ -390,7 +390,11 @@ def test_object_level_needs_instances(ros_domain, tmp_path):
     assert "use_instances:=true" in log.read_text()
 
 
-def test_upstream_instances_are_paired_by_stamp(ros_domain, tmp_path, monkeypatch):
+@pytest.mark.parametrize("known", [True, False], ids=["known", "unknown"])
+def test_upstream_instances_are_paired_by_stamp(known, ros_domain, tmp_path, monkeypatch):
+    """The node pairs every frame with its instance map; the sliding block flagged under its upstream id, or, when
+    the segmenter does not know it (no instance there), under the method's own region id (2**30 up)."""
+    from moseg_ros.methods.moving_objects import OWN_REGION_BASE
     from test_pipeline import block_truth
 
     log = tmp_path / "log"
@@ -407,15 +411,19 @@ def test_upstream_instances_are_paired_by_stamp(ros_domain, tmp_path, monkeypatc
         assert probe.spin_until(lambda: instances.get_subscription_count() > 0, 10)
         for i, frame in enumerate(textured_frames(6)):
             ids = np.full(frame.shape[:2], -1, np.int32)  # "no instance" as some segmenters mark it
-            ids[block_truth(i)] = 7   # the sliding block
+            ids[block_truth(i)] = 7 if known else -1   # the sliding block
             ids[150:, 500:] = 3       # a static region
             stamp = (60 + i) * 1_000_000_000
             instances.publish(_image(ids, stamp, "32SC1"))
             probe.send_and_wait(_image(frame, stamp), expect_mask=True)
         assert probe.spin_until(lambda: len(labels) == 6, 5)
         last = np.frombuffer(bytes(labels[-1].data), np.int32).reshape(188, 621)
-        assert set(np.unique(last)) == {0, 7}                       # the upstream id, not a proposal's
-        assert (last[block_truth(5)] == 7).mean() > 0.95
+        if known:
+            assert set(np.unique(last)) == {0, 7}                       # the upstream id, not a proposal's
+            assert (last[block_truth(5)] == 7).mean() > 0.95
+        else:
+            assert (last[block_truth(5)] >= OWN_REGION_BASE).mean() > 0.95  # 0.999 measured
+            assert not np.isin(last, [3, 7]).any()
         assert probe.diagnostics.get("frames_without_instances", "0") == "0"
     finally:
         probe.close()
