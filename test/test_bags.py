@@ -15,6 +15,8 @@ from scipy.spatial.transform import Rotation
 from moseg_ros.io.bags import (
     BagDamagedError,
     BagWriter,
+    Calibration,
+    camera_info_topic,
     iter_messages,
     list_topics,
     ns_to_stamp_fields,
@@ -197,6 +199,41 @@ def test_pick_image_topic_rules() -> None:
         pick_image_topic({"/a": image, "/b": info}, "/b")
     with pytest.raises(ValueError, match="no image topic"):
         pick_image_topic({"/gt/instances": image, "/b": info})
+
+
+def test_camera_info_topic_is_the_one_beside_the_image() -> None:
+    image, info = "sensor_msgs/msg/Image", "sensor_msgs/msg/CameraInfo"
+    beside = camera_info_topic({"/cam/image_raw": image, "/cam/camera_info": info}, "/cam/image_raw")
+    assert beside == "/cam/camera_info"
+    assert camera_info_topic({"/cam/image_raw": image, "/other/camera_info": info}, "/cam/image_raw") is None
+    assert camera_info_topic({"/cam/image_raw": image, "/cam/camera_info": image}, "/cam/image_raw") is None
+
+
+class TestCalibration:
+    @staticmethod
+    def bag(tmp_path: Path) -> Path:
+        """camera_info at T0 (K, 1242x375), T0 + 2 DT (a zero K: invalid), T0 + 3 DT (2 K, 621x188)."""
+        path = tmp_path / "calib"
+        with BagWriter(path) as writer:
+            writer.write_camera_info("/cam/camera_info", T0, "cam", K, 1242, 375, log_time_ns=T0)
+            writer.write_camera_info("/cam/camera_info", T0 + 2 * DT, "cam", np.zeros((3, 3)), 1242, 375,
+                                     log_time_ns=T0 + 2 * DT)
+            writer.write_camera_info("/cam/camera_info", T0 + 3 * DT, "cam", K / 2, 621, 188,
+                                     log_time_ns=T0 + 3 * DT)
+        return path
+
+    def test_the_newest_valid_k_for_the_frames_size(self, tmp_path: Path) -> None:
+        calibration = Calibration(self.bag(tmp_path), "/cam/camera_info")
+        assert calibration.at(T0 - 1, (375, 1242)) is None                      # before the first
+        np.testing.assert_array_equal(calibration.at(T0, (375, 1242, 3)), K)    # logged at the same time
+        np.testing.assert_array_equal(calibration.at(T0 + DT, (375, 1242)), K)  # kept until the next
+        assert calibration.at(T0 + 2 * DT, (375, 1242)) is None                 # an invalid K is none
+        assert calibration.at(T0 + 3 * DT, (375, 1242)) is None                 # a K for another size
+        np.testing.assert_array_equal(calibration.at(T0 + 4 * DT, (188, 621)), K / 2)
+
+    def test_no_topic_no_calibration(self, tmp_path: Path) -> None:
+        calibration = Calibration(self.bag(tmp_path), None)
+        assert calibration.topic is None and calibration.at(T0, (375, 1242)) is None
 
 
 def test_errors_are_specific(bag: Path, tmp_path: Path) -> None:

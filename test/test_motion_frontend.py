@@ -146,27 +146,26 @@ class TestDenseCheirality:
     """The refit's dense mask holds the body of an object the camera pans after (zero flow: no residual)."""
 
     @staticmethod
-    def _refit(degrees: float, guessed: bool, share: float = TrackMotionConfig().guessed_behind_share):
+    def _refit(degrees: float, share: float = TrackMotionConfig().behind_share):
         backward, is_car, K = pan_follow_flow(degrees=degrees)
         forward = -backward  # smooth flows: consistent enough for the forward-backward check
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         config = MotionFrontEndConfig(dense_width=is_car.shape[1],
-                                      track_motion=TrackMotionConfig(guessed_behind_share=share))
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, guessed, (backward, forward), gray,
+                                      track_motion=TrackMotionConfig(behind_share=share))
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, forward), gray,
                                   is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_car
 
     def test_the_followed_body_is_in_the_dense_mask(self):
-        dense, is_car = self._refit(0.5, guessed=True)
+        dense, is_car = self._refit(0.5)
         assert dense[is_car].mean() > 0.9 and dense[~is_car].mean() < 0.02
 
-    def test_with_a_guessed_camera_matrix_a_pair_turning_more_than_a_degree_keeps_the_followed_body(self):
-        dense, is_car = self._refit(2.0, guessed=True)  # still in the image: behind by all of the rotation
+    def test_a_pair_turning_more_than_a_degree_keeps_the_followed_body(self):
+        """The pair's K is camera_info's: the front-end guards every K against a misjudged rotation."""
+        dense, is_car = self._refit(2.0)  # still in the image: behind by all of the rotation
         assert dense[is_car].mean() > 0.9 and dense[~is_car].mean() < 0.02
-        dense, is_car = self._refit(2.0, guessed=True, share=np.inf)  # such pairs unsigned
+        dense, is_car = self._refit(2.0, share=np.inf)  # such pairs unsigned
         assert dense[is_car].mean() < 0.1
-        dense, is_car = self._refit(2.0, guessed=False, share=np.inf)  # camera_info's K: no limit
-        assert dense[is_car].mean() > 0.9
 
 
 class TestRemembered:
@@ -233,7 +232,7 @@ class TestDenseFooting:
         if smooth_car:
             gray[is_oncoming] = 90
         config = MotionFrontEndConfig(dense_width=is_parked.shape[1], dense_footing=dense_footing, **settings)
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, False, (backward, -backward), gray,
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, -backward), gray,
                                   is_parked.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_parked, is_oncoming
 
@@ -364,7 +363,7 @@ class TestDenseHysteresis:
             flow[moving, 1] += 3.0  # off the epipolar lines: the residual test flags these pixels
             if index == 2:
                 flow[75:85, 50:70, 1] += 3.0  # a part of the body only
-            observation = Observation(index, None, None, np.zeros(0, np.int64), K, False, (flow, -flow), gray,
+            observation = Observation(index, None, None, np.zeros(0, np.int64), K, (flow, -flow), gray,
                                       body.shape, backward=((index, flow),))
             masks.append(front_end.refit(observation).dense)
         return masks, body, blob
@@ -393,7 +392,7 @@ class TestBorder:
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         base = MotionFrontEndConfig(dense_width=w)
         config = replace(base, dense_baseline=replace(base.dense_baseline, border_fraction=border_fraction))
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, False, (backward, -backward), gray,
+        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, -backward), gray,
                                   is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, near_border, is_car
 
@@ -426,7 +425,7 @@ class TestTextureReach:
             gray[region] = 128
             backward[region] = (0.0, -step)
         config = MotionFrontEndConfig(dense_width=w, dense_cheir_px=0.0, texture_reach=reach)
-        observation = Observation(1, None, None, np.zeros(0, np.int64), guessed_camera_matrix((h, w)), True,
+        observation = Observation(1, None, None, np.zeros(0, np.int64), guessed_camera_matrix((h, w)),
                                   (backward, -backward), gray, (h, w))
         return MotionFrontEnd(config).refit(observation).dense, body, blank
 
@@ -475,7 +474,7 @@ def _refit_stream(points: np.ndarray, K: np.ndarray, long_pairs: bool) -> np.nda
     flagged = np.zeros(0, np.int64)
     for t in range(2, len(points)):
         long_pair = (ids, points[0], ids, points[t]) if long_pairs and t == len(points) - 1 else None
-        observation = Observation(t, (ids, points[t - 2], ids, points[t]), long_pair, ids, K, False, None,
+        observation = Observation(t, (ids, points[t - 2], ids, points[t]), long_pair, ids, K, None,
                                   np.zeros((240, 640), np.uint8), (240, 640), t if long_pair else 0)
         flagged = front_end.refit(observation).flagged
     return flagged
@@ -554,7 +553,7 @@ class TestDenseCorroboration:
         K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
         gray = rng.integers(0, 255, cls.SIZE).astype(np.uint8)
         observation = Observation(2, (ids, before.astype(np.float32), ids, now.astype(np.float32)), None, ids, K,
-                                  False, (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE)
+                                  (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE)
         flagged = np.isin(ids, MotionFrontEnd(config).refit(observation).flagged)
         return flagged[:len(static)], flagged[drift], flagged[moving]
 
@@ -589,7 +588,7 @@ class TestMeasurable:
         now = np.array([[60.0, 60.0], [100.0, 60.0], [220.0, 20.0], [239.0, 39.0]], dtype=np.float32)
         ids = np.arange(4)
         K = np.array([[300.0, 0, 160], [0, 300, 60], [0, 0, 1]])
-        observation = Observation(2, (ids, now, ids, now), None, ids, K, False, None, gray, (h, w))
+        observation = Observation(2, (ids, now, ids, now), None, ids, K, None, gray, (h, w))
         config = MotionFrontEndConfig(dense_width=w, aperture_share=share)
         among = np.array([True, True, True, False, True, True])
         return MotionFrontEnd(config)._measurable(np.arange(6), observation, among)

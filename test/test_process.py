@@ -34,6 +34,22 @@ def test_process_writes_one_mask_per_frame_deterministically(textured_bag, tmp_p
     assert np.mean([a[s].mean() for s in inputs[5:]]) > 2.0  # the sliding block is found
 
 
+def test_frames_get_the_bags_camera_info_as_the_nodes_would(textured_bag, tmp_path, monkeypatch):
+    from moseg_ros.pipeline import Pipeline
+
+    given = []
+    process = Pipeline.process
+
+    def spy(self, image, stamp_ns, instances=None, camera_matrix=None, **kwargs):
+        given.append(camera_matrix)
+        return process(self, image, stamp_ns, instances, camera_matrix, **kwargs)
+
+    monkeypatch.setattr(Pipeline, "process", spy)
+    counts = process_bag(textured_bag, tmp_path / "out")
+    assert counts["camera_info"] == "/camera/camera_info" and counts["calibrated_frames"] == 20
+    assert len(given) == 20 and all(k is not None and k[0, 0] == 500.0 for k in given)
+
+
 def test_live_frames_that_wait_for_their_own_refit_give_the_offline_masks(textured_bag, tmp_path):
     offline = process_bag(textured_bag, tmp_path / "offline")
     assert moseg(["process", str(textured_bag), "-o", str(tmp_path / "live"), "--no-progress", "--live", "20",

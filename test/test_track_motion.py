@@ -298,16 +298,16 @@ class TestCheirality:
         assert evidence is not None and evidence[1] is None  # the homography branch: no translation, no sign
 
 
-def test_with_a_guessed_camera_matrix_pairs_that_turn_too_much_sign_only_what_is_far_behind_infinity():
+def test_guarded_pairs_that_turn_too_much_sign_only_what_is_far_behind_infinity():
     tracks, _ = street(n_mover=0)
-    strict = TrackMotionConfig(guessed_max_rotation_deg=0.0)  # every real pair turns a little
-    calibrated = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=False)
-    assert calibrated.signed is not None and np.isfinite(calibrated.signed).all()
-    turned = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)
+    strict = TrackMotionConfig(max_rotation_deg=0.0)  # every real pair turns a little
+    unguarded = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guarded=False)
+    assert unguarded.signed is not None and np.isfinite(unguarded.signed).all()
+    turned = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guarded=True)
     assert np.isnan(turned.signed).all()  # no static track lies far behind infinity, and no other is signed
     assert turned.ground is None and turned.footing is None  # no epipole row: no ground or footing test
-    never = TrackMotionConfig(guessed_max_rotation_deg=0.0, guessed_behind_share=np.inf)
-    assert pair_evidence(tracks[:, 0], tracks[:, 2], never, K, guessed=True).signed is None
+    never = TrackMotionConfig(max_rotation_deg=0.0, behind_share=np.inf)
+    assert pair_evidence(tracks[:, 0], tracks[:, 2], never, K, guarded=True).signed is None
 
 
 def _at_infinity(n: int = 40, frames: int = 6, seed: int = 1) -> np.ndarray:
@@ -324,23 +324,23 @@ def _at_infinity(n: int = 40, frames: int = 6, seed: int = 1) -> np.ndarray:
     return (np.stack(tracks, axis=1) + rng.normal(0, 0.2, (n, frames, 2))).astype(np.float32)
 
 
-def test_with_a_guessed_camera_matrix_only_tracks_far_behind_infinity_are_behind_it():
+def test_guarded_only_tracks_far_behind_infinity_are_behind_it():
     tracks, car = pan_follow()
     tracks, car = np.concatenate([tracks, _at_infinity()]), np.r_[car, np.zeros(40, bool)]
-    loose = TrackMotionConfig(guessed_max_rotation_deg=10.0)  # a pair within the rotation limit
-    calibrated = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guessed=False)
-    guessed = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guessed=True)
-    ahead = calibrated.signed >= 0
-    assert np.array_equal(guessed.signed[ahead], calibrated.signed[ahead])
+    loose = TrackMotionConfig(max_rotation_deg=10.0)  # a pair within the rotation limit
+    unguarded = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guarded=False)
+    guarded = pair_evidence(tracks[:, 0], tracks[:, 2], loose, K, guarded=True)
+    ahead = unguarded.signed >= 0
+    assert np.array_equal(guarded.signed[ahead], unguarded.signed[ahead])
     slightly = ~ahead & ~car  # static tracks that the noise puts just behind infinity: taken as at infinity
-    assert slightly.sum() > 5 and (guessed.signed[slightly] == 0).all()
-    assert np.array_equal(guessed.signed[car], calibrated.signed[car])  # the followed car: all of the rotation
+    assert slightly.sum() > 5 and (guarded.signed[slightly] == 0).all()
+    assert np.array_equal(guarded.signed[car], unguarded.signed[car])  # the followed car: all of the rotation
 
 
 def test_a_turned_pair_still_signs_the_car_the_camera_pans_after():
     tracks, car = pan_follow()  # turns 1 degree a frame
-    strict = TrackMotionConfig(guessed_max_rotation_deg=0.5)
-    evidence = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guessed=True)
+    strict = TrackMotionConfig(max_rotation_deg=0.5)
+    evidence = pair_evidence(tracks[:, 0], tracks[:, 2], strict, K, guarded=True)
     assert (evidence.signed[car] < -strict.cheir_px).mean() > 0.9
     assert np.isnan(evidence.signed[~car]).mean() > 0.99
 
@@ -583,9 +583,9 @@ class TestBehindInfinity:
         to_previous, is_car, K_flow = pan_follow_flow()  # turns 1 degree
         F, valid = _dense_fundamental(to_previous), np.ones(is_car.shape, bool)
         behind = behind_infinity(dense_parallax(to_previous, valid, F, K_flow, max_rotation_deg=0.5), valid,
-                                 guessed=True)
+                                 guarded=True)
         assert behind[is_car].mean() > 0.95 and behind[~is_car].mean() < 0.01  # still: all of the rotation
-        never = TrackMotionConfig(guessed_behind_share=np.inf)
+        never = TrackMotionConfig(behind_share=np.inf)
         assert dense_parallax(to_previous, valid, F, K_flow, never, max_rotation_deg=0.5) is None
         assert dense_parallax(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
 

@@ -19,14 +19,15 @@ The sign of t is voted by F's inliers with |parallax| > ``cheir_decided_px``; a 
 ``cheir_consensus`` agreement, which drops pure rotations and pairs dominated by a mover; 0.8 rather than
 0.9, because a camera that pans after an object keeps it still in the image, and such a mover votes
 "behind infinity" with every track it holds (DAVIS car-roundabout: at 0.9 not one pair was signed). A track
-moves when its median signed parallax is below -``cheir_px``. With a guessed K the rotation is misjudged, by
-a share of the image motion it gives (most in a turn), and static foliage came out 'behind infinity' (KITTI
-odometry 07, 3-4.5 degrees per pair): a track is then behind infinity only by at least
-``guessed_behind_share`` of the rotation's image motion at it (one less far behind counts as at infinity),
-and in pairs turning more than ``guessed_max_rotation_deg`` nothing else is signed and the ground and footing
-tests are off. An object the panning camera follows (DAVIS libby: 2 degrees a frame) stays still in the
-image, behind infinity by all of it. An oncoming car projects exactly like a nearer static point in every
-pair and stays invisible to both tests.
+moves when its median signed parallax is below -``cheir_px``. The rotation recovered from F is misjudged by a
+share of the image motion it gives, most in a turn and most with a guessed K: static foliage came out 'behind
+infinity' (KITTI odometry 07, 3-4.5 degrees per pair, K guessed), and with camera_info's K a house in the corner
+of frames 26-35, a shop's awning and a hedge top against a tree (docs/experiments.md). With ``guarded`` (the
+front-end's choice for every K) a track is then behind infinity only by at least ``behind_share`` of the
+rotation's image motion at it (one less far behind counts as at infinity), and in pairs turning more than
+``max_rotation_deg`` nothing else is signed and the ground and footing tests are off. An object the panning
+camera follows (DAVIS libby: 2 degrees a frame) stays still in the image, behind infinity by all of it. An
+oncoming car projects exactly like a nearer static point in every pair and stays invisible to both tests.
 
 A car followed at the camera's own speed, or one pulling away slowly, has parallax near zero: in front of
 infinity, but farther than the ground it stands on. Below the horizon no static point can be farther than
@@ -110,8 +111,8 @@ class TrackMotionConfig:
     cheir_consensus: float = 0.8
     cheir_decided_px: float = 1.0
     cheir_min_votes: int = 20
-    guessed_max_rotation_deg: float = 2.0
-    guessed_behind_share: float = 0.25
+    max_rotation_deg: float = 2.0
+    behind_share: float = 0.25
     homography_preference: float = 0.9
     gric_min_sigma_px: float = 0.1
     # The full homography fit (MAGSAC++, the costliest fit of a refit on a street) runs only where a quick one
@@ -181,7 +182,7 @@ class Parallax:
         rotation: (3, 3) K R K^-1, the infinite homography.
         translation: (3,) K t, oriented by the vote (``oriented_parallax`` of it is positive for static points).
         turned: the pair turned more than its limit: ``epipole_row`` is None (no ground or footing test),
-            and the cheirality test takes only the points ``far_behind`` infinity (``guessed_signs``).
+            and the cheirality test takes only the points ``far_behind`` infinity (``guarded_signs``).
     """
 
     signed: np.ndarray
@@ -231,20 +232,19 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
         inliers: (N,) bool RANSAC inliers of F (they vote on the sign).
         K: (3, 3) camera matrix (from camera_info, or ``guessed_camera_matrix``).
         config: the cheirality settings.
-        max_rotation_deg: a pair that turns more is ``turned`` (with a guessed K the infinite homography's
-            error grows with the rotation: see ``guessed_signs``), and gives None when
-            ``config.guessed_behind_share`` is infinite.
+        max_rotation_deg: a pair that turns more is ``turned`` (the infinite homography's error grows with the
+            rotation: see ``guarded_signs``), and gives None when ``config.behind_share`` is infinite.
 
     Returns:
         None when the pair does not decide the sign (too few votes, no consensus, or too much rotation with
-        an infinite ``guessed_behind_share``). The translation's sign is the one the votes choose, for ``signed``
+        an infinite ``behind_share``). The translation's sign is the one the votes choose, for ``signed``
         and ``epipole_row`` alike.
     """
     R1, R2, t = cv2.decomposeEssentialMat(K.T @ fundamental @ K)
     # Of the two rotations the true one is the small one (the other is turned 180 degrees about the baseline).
     R = R1 if np.trace(R1) >= np.trace(R2) else R2
     turned = rotation_degrees(R) > max_rotation_deg
-    if turned and not np.isfinite(config.guessed_behind_share):
+    if turned and not np.isfinite(config.behind_share):
         return None
     rotation, b = K @ R @ np.linalg.inv(K), (K @ t).ravel()
     signed, gain = oriented_parallax(x1, x2, rotation, b)
@@ -267,9 +267,9 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
     """(N,) bool: points whose parallax lies behind infinity by at least ``share`` of the image motion the
     rotation alone gives them, |K R K^-1 x1 - x1|.
 
-    With a guessed K the recovered rotation is off by a share of its own image motion, and static points come
-    out behind infinity by about that much; an object the panning camera follows stays still in the image, so
-    it lies behind infinity by all of it.
+    The rotation recovered from F is off by a share of its own image motion (most with a guessed K, and in a
+    turn with any), and static points come out behind infinity by about that much; an object the panning camera
+    follows stays still in the image, so it lies behind infinity by all of it.
 
     Args:
         x1: (N, 2) points in the earlier image.
@@ -282,8 +282,8 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
     return -signed >= share * motion
 
 
-def guessed_signs(x1: np.ndarray, parallax: Parallax, share: float) -> np.ndarray:
-    """(N,) the signed parallax the cheirality test takes from a pair measured with a guessed K: a point
+def guarded_signs(x1: np.ndarray, parallax: Parallax, share: float) -> np.ndarray:
+    """(N,) the signed parallax the cheirality test takes from a guarded pair (``pair_evidence``): a point
     ``far_behind`` infinity (by ``share`` of the rotation's image motion) keeps its value; one less far behind
     counts as at infinity (0), and in a ``turned`` pair every other point is undecided (NaN). The ground and
     footing tests keep ``parallax.signed``: a followed car's small negative parallax is theirs."""
@@ -351,7 +351,7 @@ def dense_parallax(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.n
 
 
 def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
-                    threshold_px: float = 1.0, guessed: bool = False) -> np.ndarray:
+                    threshold_px: float = 1.0, guarded: bool = False) -> np.ndarray:
     """(H, W) bool: reliable pixels whose signed parallax is below -``threshold_px`` (the cheirality test of
     ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling away,
     where tracks are few).
@@ -359,17 +359,17 @@ def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMot
     Args:
         parallax: the flow's ``dense_parallax``.
         valid: (H, W) bool pixels whose flow is reliable.
-        config: ``guessed_behind_share``.
+        config: ``behind_share``.
         threshold_px: parallax below minus this moves.
-        guessed: K is a guess: a pixel is behind infinity only by at least ``config.guessed_behind_share`` of
-            the rotation's image motion there (``far_behind``).
+        guarded: the rotation may be misjudged (a guessed K, a turn): a pixel is behind infinity only by at
+            least ``config.behind_share`` of the rotation's image motion there (``far_behind``).
     """
     h, w = valid.shape
     behind = (parallax.signed < -threshold_px).ravel()
-    if guessed:  # tested where behind only: a few pixels of the frame
+    if guarded:  # tested where behind only: a few pixels of the frame
         where = np.flatnonzero(behind)
         behind[where] = far_behind(pixel_grid(h, w).reshape(-1, 2)[where].astype(np.float64),
-                                   parallax.signed.ravel()[where], parallax.vote.rotation, config.guessed_behind_share)
+                                   parallax.signed.ravel()[where], parallax.vote.rotation, config.behind_share)
     return behind.reshape(h, w) & valid
 
 
@@ -658,16 +658,16 @@ class PairEvidence(NamedTuple):
 
 
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
-                  K: np.ndarray | None = None, guessed: bool = False,
+                  K: np.ndarray | None = None, guarded: bool = False,
                   planar_check: bool = True) -> PairEvidence | None:
     """The evidence of one frame pair's tracks (``PairEvidence``); None when there is no model at all.
 
     Under F a track's distance is its Sampson distance beyond ``epipole_allowance`` times its displacement
     (``beyond_allowance``); under a homography or a still camera it is the whole transfer error or motion.
 
-    ``guessed``: K is not the camera's: a track is behind infinity only by at least ``guessed_behind_share`` of
-    the rotation's image motion at it, and pairs turning more than ``guessed_max_rotation_deg`` sign nothing
-    else (``signed_parallax``).
+    ``guarded``: the rotation may be misjudged (the module's docstring): a track is behind infinity only by at
+    least ``behind_share`` of the rotation's image motion at it, and pairs turning more than
+    ``max_rotation_deg`` sign nothing else (``signed_parallax``).
     ``planar_check``: False skips the homography's test of F's degeneracy (a caller that knows the camera
     translates, from a pair of the same window; the homography fit is the costlier half)."""
     if len(x1) < config.min_tracks:
@@ -697,12 +697,12 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     distance = beyond_allowance(np.sqrt(f_squared), x1, x2, config.epipole_allowance)
     if K is None:
         return PairEvidence(distance)
-    limit = config.guessed_max_rotation_deg if guessed else np.inf
+    limit = config.max_rotation_deg if guarded else np.inf
     parallax = signed_parallax(x1, x2, fundamental, f_inliers, K, config, limit)
     if parallax is None:
         return PairEvidence(distance)
     slope = ground_slope(x1, parallax, config)  # once for the ground, shortfall and footing tests
-    signed = guessed_signs(x1, parallax, config.guessed_behind_share) if guessed else parallax.signed
+    signed = guarded_signs(x1, parallax, config.behind_share) if guarded else parallax.signed
     if slope is None:
         return PairEvidence(distance, signed, None, footing_excess(x1, parallax, None, config, slope))
     ground = ground_parallax_ratio(x1, parallax, config, slope)

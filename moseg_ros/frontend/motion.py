@@ -274,8 +274,7 @@ class Observation:
         long_pair: the same for the window's first frame and now, or None until the window holds more than
             ``gap`` + 1 frames.
         alive: ids of the tracks living now.
-        camera_matrix: (3, 3) K at the tracking size (guessed when ``guessed``).
-        guessed: True when K is a guess (no camera_info).
+        camera_matrix: (3, 3) K at the tracking size (camera_info's, or guessed without it).
         flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None; the frame
             path computes only the backward one (forward None), the refit the forward one from ``earlier``.
         gray: the frame at the dense size (for the texture gate).
@@ -291,7 +290,6 @@ class Observation:
     long_pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
     alive: np.ndarray
     camera_matrix: np.ndarray
-    guessed: bool
     flows: tuple[np.ndarray, np.ndarray] | None
     gray: np.ndarray
     tracking_shape: tuple[int, int]
@@ -407,10 +405,9 @@ class MotionFrontEnd:
         # the short pairs' parallax is below their floor, and the first frames of a stream would wait for the
         # window to fill.
         long_pair = (*self._frames[0], *self._frames[-1]) if len(self._frames) > gap + 1 else None
-        guessed = camera_matrix is None
-        K = guessed_camera_matrix(gray.shape) if guessed else camera_matrix
+        K = guessed_camera_matrix(gray.shape) if camera_matrix is None else camera_matrix
         self._tracking_shape = gray.shape
-        return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, guessed, flows,
+        return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, flows,
                            self._grays[-1], gray.shape, len(self._frames) - 1 if long_pair is not None else 0,
                            tuple(self._backward), earlier)
 
@@ -514,14 +511,14 @@ class MotionFrontEnd:
         corroborates it (``TrackMotionConfig.corroboration``)."""
         newest = None
         if observation.pair is not None:
-            newest = self._fit_pair(*observation.pair, observation.camera_matrix, observation.guessed)
+            newest = self._fit_pair(*observation.pair, observation.camera_matrix)
             if newest is not None:
                 self._pairs.append(newest)
         # The long pair is fitted only while the newest short pair decides a sign (a translating camera, F
         # not degenerate): the ground and footing tests need nothing else.
         long = None
         if observation.long_pair is not None and newest is not None and newest[1].signed is not None:
-            long = self._fit_pair(*observation.long_pair, observation.camera_matrix, observation.guessed,
+            long = self._fit_pair(*observation.long_pair, observation.camera_matrix,
                                   observation.long_span)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64)
@@ -600,20 +597,21 @@ class MotionFrontEnd:
         return ids[(counts >= self.config.sticky_windows) & (index - last <= self.config.sticky_frames)]
 
     def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, K: np.ndarray,
-                  guessed: bool, frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
+                  frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
         """(ids, evidence) of the tracks seen in both frames of a pair ``frames`` apart (default: ``gap``; a
-        longer pair skips the planar check, see ``_flagged``)."""
+        longer pair skips the planar check, see ``_flagged``), guarded against a misjudged rotation whatever K
+        is (core/track_motion.py: in KITTI 07's corner camera_info's K let a house pass for a mover)."""
         config = self.config.track_motion
         if frames is not None:
-            config = replace(config, guessed_max_rotation_deg=self._guessed_rotation_limit(frames))
+            config = replace(config, max_rotation_deg=self._rotation_limit(frames))
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
-        evidence = pair_evidence(x1[i1], x2[i2], config, K, guessed, planar_check=frames is None)
+        evidence = pair_evidence(x1[i1], x2[i2], config, K, guarded=True, planar_check=frames is None)
         return None if evidence is None else (both, evidence)
 
-    def _guessed_rotation_limit(self, frames: int) -> float:
-        """Degrees a pair ``frames`` apart may turn with a guessed K: ``guessed_max_rotation_deg`` holds for the
+    def _rotation_limit(self, frames: int) -> float:
+        """Degrees a pair ``frames`` apart may turn before it is ``turned``: ``max_rotation_deg`` holds for the
         track pairs (``gap`` frames), so the limit per frame is the same for every pair."""
-        return self.config.track_motion.guessed_max_rotation_deg / self.config.track_motion.gap * frames
+        return self.config.track_motion.max_rotation_deg / self.config.track_motion.gap * frames
 
     def _reliable(self, gray: np.ndarray, flow: np.ndarray) -> np.ndarray:
         """(h, w) bool: pixels whose dense flow the residual test may trust: textured ones (the smaller
@@ -638,14 +636,14 @@ class MotionFrontEnd:
             moving &= reliable
         if evidence.homography is None and (self.config.dense_cheir_px > 0 or self.config.dense_footing):
             K = scaled_to(observation.camera_matrix, observation.tracking_shape, gray.shape)
-            limit = self._guessed_rotation_limit(self.config.dense_gap) if observation.guessed else np.inf
+            limit = self._rotation_limit(self.config.dense_gap)
             parallax = dense_parallax(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                       inlier_px=self.config.dense_baseline.ransac_threshold_px, max_rotation_deg=limit)
             if parallax is not None:
-                moving |= self._against_parallax(parallax, evidence.valid, observation.guessed, reliable)
+                moving |= self._against_parallax(parallax, evidence.valid, reliable)
         return moving
 
-    def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray, guessed: bool,
+    def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray,
                           reliable: np.ndarray | None = None) -> np.ndarray:
         """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``) or, of the
         ``reliable`` ones (``_reliable``; None: all), nearer than the road under them (``dense_footing``)."""
@@ -653,7 +651,7 @@ class MotionFrontEnd:
         if self.config.dense_cheir_px > 0:
             # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
             moving |= behind_infinity(parallax, valid, self.config.track_motion,
-                                      threshold_px=self.config.dense_cheir_px, guessed=guessed)
+                                      threshold_px=self.config.dense_cheir_px, guarded=True)
         near = (nearer_than_road(parallax, valid, self.config.track_motion, excess_px=self.config.dense_footing_px)
                 if self.config.dense_footing else None)
         if near is None:

@@ -50,6 +50,7 @@ __all__ = [
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
+CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 DEFAULT_IMAGE_TOPIC = "/camera/image_raw"
 GROUND_TRUTH_PREFIX = "/gt/"
 _STORAGES = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
@@ -433,6 +434,45 @@ def iter_messages(path: str | Path, topics: Iterable[str] | None = None) -> Iter
 
 def _is_image_type(msgtype: str) -> bool:
     return msgtype.replace("/msg/", "/") in ("sensor_msgs/Image", "sensor_msgs/CompressedImage")
+
+
+def camera_info_topic(topics: dict[str, str], image_topic: str) -> str | None:
+    """The camera_info beside ``image_topic`` in ``topics`` (topic -> msgtype): ``<its namespace>/camera_info``,
+    as a camera driver publishes them; None when the bag has no such CameraInfo topic."""
+    topic = image_topic.rsplit("/", 1)[0] + "/camera_info"
+    return topic if topics.get(topic) == CAMERA_INFO_TYPE else None
+
+
+class Calibration:
+    """A bag's camera_info over time, read once: the K that a frame logged at a given time had, as the node
+    keeps the newest camera_info it got.
+
+    Args:
+        path: the bag.
+        topic: its CameraInfo topic (``camera_info_topic``), or None (no calibration: ``at`` gives None).
+    """
+
+    def __init__(self, path: str | Path, topic: str | None) -> None:
+        self.topic = topic
+        self._times: list[int] = []
+        self._cameras: list[tuple[np.ndarray | None, tuple[int, int]]] = []
+        try:
+            for _, log_time, msg in iter_messages(path, [topic]) if topic else ():
+                k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+                valid = k[0, 0] > 0 and k[1, 1] > 0 and bool(np.isfinite(k).all())
+                self._times.append(int(log_time))
+                self._cameras.append((k if valid else None, (int(msg.height), int(msg.width))))
+        except BagDamagedError:
+            pass  # what was read before the damage holds; the images' reading reports the damage
+
+    def at(self, log_time_ns: int, shape: tuple[int, ...]) -> np.ndarray | None:
+        """(3, 3) K of the newest camera_info logged at or before ``log_time_ns``, when it is valid and for an
+        image of ``shape`` ((H, W, ...): a K for another size would mislead); else None."""
+        index = int(np.searchsorted(self._times, log_time_ns, side="right")) - 1
+        if index < 0:
+            return None
+        k, size = self._cameras[index]
+        return k if size == tuple(shape[:2]) else None
 
 
 def pick_image_topic(topics: dict[str, str], requested: str | None = None) -> str:

@@ -23,7 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.io.bags import BagDamagedError, BagWriter, list_topics, pick_image_topic, read_images
+from moseg_ros.io.bags import (BagDamagedError, BagWriter, Calibration, camera_info_topic, list_topics,
+                               pick_image_topic, read_images)
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -43,15 +44,23 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
     the pipeline at as the node does, refit on its worker and frames paced (the masks the node would publish;
     0: offline and deterministic).
 
+    The frames get the K of the bag's camera_info beside the image topic (``<namespace>/camera_info``), the
+    newest logged before each and for its size, as the node's would; without one the method runs uncalibrated.
+
     Returns:
-        Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing, and
-        ``input_damage`` (None, or why the reading of a damaged input stopped).
+        Counts: frames_in, masks_out, skipped (with the stamps and reasons), resets, timing,
+        ``camera_info`` (its topic or None) and ``calibrated_frames``, and ``input_damage`` (None, or why the
+        reading of a damaged input stopped).
     """
     counts: dict[str, Any] = {"frames_in": 0, "masks_out": 0, "skipped": [], "resets": 0, "statuses": {},
                               "input_damage": None}
     seconds: list[float] = []
     start = time.perf_counter()
-    topic = pick_image_topic(list_topics(bag), image_topic)  # an unusable input fails before the output exists
+    topics = list_topics(bag)
+    topic = pick_image_topic(topics, image_topic)  # an unusable input fails before the output exists
+    calibration = Calibration(bag, camera_info_topic(topics, topic))
+    counts["camera_info"] = calibration.topic
+    counts["calibrated_frames"] = 0
     if overwrite:
         _remove_output_bag(Path(output), Path(bag))
     pacer = Pacer(live)
@@ -59,7 +68,7 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
         try:
             for image in read_images(bag, topic):
                 pacer.wait()
-                _process_image(pipeline, image, writer, counts, seconds, pacer.next_due)
+                _process_image(pipeline, image, writer, counts, seconds, pacer.next_due, calibration)
                 if progress:
                     print(f"\r{counts['frames_in']} frames, {seconds[-1] * 1e3 if seconds else 0:.0f} ms/frame",
                           end="", file=sys.stderr, flush=True)
@@ -89,16 +98,20 @@ def _remove_output_bag(output: Path, bag: Path) -> None:
 
 
 def _process_image(pipeline: Pipeline, image: Any, writer: BagWriter, counts: dict[str, Any],
-                   seconds: list[float], next_frame_at: float | None = None) -> None:
+                   seconds: list[float], next_frame_at: float | None = None,
+                   calibration: Calibration | None = None) -> None:
     """Segment one bag image and write its three masks, or count it as skipped when it cannot be decoded
-    (``next_frame_at``: when the next is due at a live pace, see Pipeline.process)."""
+    (``next_frame_at``: when the next is due at a live pace, see Pipeline.process; ``calibration``: the bag's
+    camera_info, whose K the frame gets as the node's would)."""
     counts["frames_in"] += 1
     try:
         frame = decode_frame(image.msg)
     except ValueError as error:
         counts["skipped"].append({"stamp_ns": image.stamp_ns, "reason": str(error)})
         return
-    result = pipeline.process(frame, image.stamp_ns, next_frame_at=next_frame_at)
+    camera_matrix = None if calibration is None else calibration.at(image.log_time_ns, frame.shape)
+    counts["calibrated_frames"] += camera_matrix is not None
+    result = pipeline.process(frame, image.stamp_ns, camera_matrix=camera_matrix, next_frame_at=next_frame_at)
     status = result.status.split(":")[0]
     counts["statuses"][status] = counts["statuses"].get(status, 0) + 1
     seconds.append(result.seconds)

@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, list_topics, pick_image_topic
+from moseg_ros.io.bags import (CAMERA_INFO_TYPE, BagDamagedError, BagWriter, camera_info_topic, iter_messages,
+                               list_topics, pick_image_topic)
 from moseg_ros.timing import sleep_until
 from moseg_ros.tools.dds import use_loopback
 
@@ -31,7 +32,6 @@ OUTPUTS = {
     "instance_labels": "sensor_msgs/msg/Image",
 }
 DIAGNOSTICS_TYPE = "diagnostic_msgs/msg/DiagnosticArray"
-CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 
 
 @dataclass
@@ -87,8 +87,8 @@ def camera_topics(available: dict[str, str], image_topic: str | None = None) -> 
     """(the image topic, {topic: type} of it and of its camera_info beside it when the bag has one)."""
     topic = pick_image_topic(available, image_topic)
     topics = {topic: available[topic]}
-    info_topic = topic.rsplit("/", 1)[0] + "/camera_info"
-    if available.get(info_topic) == CAMERA_INFO_TYPE:
+    info_topic = camera_info_topic(available, topic)
+    if info_topic is not None:
         topics[info_topic] = CAMERA_INFO_TYPE
     return topic, topics
 
