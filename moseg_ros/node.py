@@ -31,7 +31,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, qos_profile_sensor_data, ReliabilityPolicy, HistoryPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-from moseg_ros.io.frames import decode_frame, decode_instances
+from moseg_ros.io.frames import camera_matrix, decode_frame, decode_instances
 from moseg_ros.io.image import declared_size, image_from_array
 from moseg_ros.params import Setting, all_settings, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
@@ -185,8 +185,7 @@ class SegmenterNode(Node):
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         # moving_objects uses K for its cheirality test; without it (or for another image size) K is guessed.
-        k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-        self.camera_matrix = k if k[0, 0] > 0 and k[1, 1] > 0 and np.isfinite(k).all() else None
+        self.camera_matrix = camera_matrix(msg.k)
         self._camera_size = (msg.height, msg.width)
 
     def _camera_matrix_for(self, frame: np.ndarray) -> np.ndarray | None:

@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from moseg_ros.io.frames import decode_frame
+from moseg_ros.io.frames import camera_matrix, decode_frame
 from moseg_ros.io.image import ImageDecodeError, compressed_size
 
 
@@ -48,3 +48,13 @@ class TestDecodeFrameLimit:
         assert decode_frame(small, max_pixels=2400).shape == (40, 60)
         raw = SimpleNamespace(encoding="mono8", height=2, width=3, step=3, is_bigendian=0, data=bytes(6))
         assert decode_frame(raw, max_pixels=6).shape == (2, 3)
+
+
+class TestCameraMatrix:
+    def test_nine_values_make_k(self):
+        K = camera_matrix([707.0, 0, 601.9, 0, 707.0, 183.1, 0, 0, 1])
+        assert K.shape == (3, 3) and K.dtype == np.float64 and K[0, 0] == 707.0 and K[1, 2] == 183.1
+
+    @pytest.mark.parametrize("k", [[0.0] * 9, [np.nan, 0, 1, 0, 500, 1, 0, 0, 1], [500, 0, 1, 0, -500, 1, 0, 0, 1]])
+    def test_placeholders_are_no_camera(self, k):
+        assert camera_matrix(k) is None

@@ -26,6 +26,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from scipy.spatial.transform import Rotation
 
+from moseg_ros.io.frames import camera_matrix
 from moseg_ros.io.image import (
     array_to_image_fields,
     compressed_to_array,
@@ -40,6 +41,9 @@ __all__ = [
     "BagImage",
     "IMAGE_TYPE",
     "COMPRESSED_TYPE",
+    "CAMERA_INFO_TYPE",
+    "Calibration",
+    "camera_info_topic",
     "stamp_to_ns",
     "ns_to_stamp_fields",
     "list_topics",
@@ -458,10 +462,8 @@ class Calibration:
         self._cameras: list[tuple[np.ndarray | None, tuple[int, int]]] = []
         try:
             for _, log_time, msg in iter_messages(path, [topic]) if topic else ():
-                k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-                valid = k[0, 0] > 0 and k[1, 1] > 0 and bool(np.isfinite(k).all())
                 self._times.append(int(log_time))
-                self._cameras.append((k if valid else None, (int(msg.height), int(msg.width))))
+                self._cameras.append((camera_matrix(msg.k), (int(msg.height), int(msg.width))))
         except BagDamagedError:
             pass  # what was read before the damage holds; the images' reading reports the damage
 

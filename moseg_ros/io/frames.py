@@ -35,3 +35,10 @@ def decode_instances(msg: Any) -> np.ndarray:
     if ids.ndim != 2:
         raise ImageDecodeError(f"instance images must have one channel, got shape {ids.shape}")
     return ids.astype(np.int32)
+
+
+def camera_matrix(k: Any) -> np.ndarray | None:
+    """(3, 3) float64 K from a CameraInfo's nine ``k`` values, or None when they are no camera (a zero or
+    non-finite focal length: an uncalibrated driver's placeholder)."""
+    K = np.asarray(k, dtype=np.float64).reshape(3, 3)
+    return K if K[0, 0] > 0 and K[1, 1] > 0 and bool(np.isfinite(K).all()) else None
