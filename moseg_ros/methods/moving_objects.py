@@ -167,6 +167,8 @@ class MovingObjects:
         grown by the margin, see ``published_regions``) with a hold (``InstanceDecisions``)."""
         if first:  # the method's reset, which comes with every first frame, forgot the held instances
             return Decision(instances, status=Status.WARMUP)
+        if labels.shape != instances.shape:  # once, for the regions and the unknown ones alike
+            labels = cv2.resize(labels, instances.shape[::-1], interpolation=cv2.INTER_NEAREST)
         margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
         regions = published_regions(labels, instances.shape, margin)
         moving = self._instance_decisions.update(instances, regions)
