@@ -142,6 +142,35 @@ class TestMotionFrontEnd:
         assert not labels.any() and len(front_end.moving_track_points) == 0
 
 
+class TestCatchUp:
+    """A refit that skips frames (a background worker slower than the camera) fits their track pairs too."""
+
+    @staticmethod
+    def _pairs(every: int) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
+        for index, frame in enumerate(textured_frames(9)):
+            observation = front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+            if index % every == 0:
+                flagged = front_end.refit(observation).flagged
+        return [(ids, evidence.distance) for ids, evidence in front_end._pairs], flagged
+
+    def test_the_window_holds_the_same_pairs_as_refitting_every_frame(self):
+        every_frame, flagged_every = self._pairs(1)
+        skipping, flagged_skipping = self._pairs(4)
+        config = MotionFrontEndConfig()
+        assert len(every_frame) == len(skipping) == config.window_length - config.track_motion.gap
+        for (ids, distance), (ids_skipping, distance_skipping) in zip(every_frame, skipping):
+            np.testing.assert_array_equal(ids, ids_skipping)
+            np.testing.assert_allclose(distance, distance_skipping)
+        assert flagged_skipping.size > 10 and np.isin(flagged_skipping, flagged_every).all()
+
+    def test_an_observation_without_its_window_fits_only_its_own_pair(self):
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
+        observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
+        front_end.refit(replace(observations[-1], window=()))
+        assert len(front_end._pairs) == 1
+
+
 class TestDenseCheirality:
     """The refit's dense mask holds the body of an object the camera pans after (zero flow: no residual)."""
 

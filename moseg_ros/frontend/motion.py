@@ -283,6 +283,8 @@ class Observation:
         backward: (frame, backward dense flow to the frame before) of the last frames, oldest first and this
             frame last, to carry an earlier refit's dense mask to this frame.
         earlier: the frame ``dense_gap`` back at the dense size (for the refit's forward flow), or None.
+        window: (ids, points) of the window's frames, oldest first and this frame last (the same arrays as the
+            pairs'), so that a refit that skipped frames fits their track pairs too (``MotionFrontEnd.refit``).
     """
 
     index: int
@@ -296,6 +298,7 @@ class Observation:
     long_span: int = 0
     backward: tuple[tuple[int, np.ndarray], ...] = ()
     earlier: np.ndarray | None = None
+    window: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -360,6 +363,8 @@ class MotionFrontEnd:
         self._flag_last = np.zeros(0, dtype=np.int64)
         # The last refit's own dense mask (before hysteresis) and its frame.
         self._last_dense: tuple[int, np.ndarray] | None = None
+        # The newest frame whose track pair has been fitted (a refit that skipped frames fits theirs first).
+        self._fitted_through = -1
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -409,7 +414,7 @@ class MotionFrontEnd:
         self._tracking_shape = gray.shape
         return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, flows,
                            self._grays[-1], gray.shape, len(self._frames) - 1 if long_pair is not None else 0,
-                           tuple(self._backward), earlier)
+                           tuple(self._backward), earlier, tuple(self._frames))
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
@@ -509,6 +514,7 @@ class MotionFrontEnd:
         """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); with the
         frame's ``dense`` evidence, a track's epipolar distance counts only where the dense residual near it
         corroborates it (``TrackMotionConfig.corroboration``)."""
+        self._catch_up(observation)
         newest = None
         if observation.pair is not None:
             newest = self._fit_pair(*observation.pair, observation.camera_matrix)
@@ -545,6 +551,19 @@ class MotionFrontEnd:
                                     dense=self._dense_near(ids, observation, dense),
                                     measurable=self._measurable(ids, observation, short))]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
+
+    def _catch_up(self, observation: Observation) -> None:
+        """Fit the track pairs of the frames since the last refit that are still in ``observation``'s window: a
+        background refit slower than the camera takes only the newest frame, and the window's track test would
+        otherwise see only every second or third pair, and lose moving tracks (docs/experiments.md). Nothing to do
+        when every frame is refitted."""
+        gap, first = self.config.track_motion.gap, observation.index - len(observation.window) + 1
+        for index in range(max(self._fitted_through + 1, first + gap), observation.index):
+            now = observation.window[index - first]
+            fitted = self._fit_pair(*observation.window[index - first - gap], *now, observation.camera_matrix)
+            if fitted is not None:
+                self._pairs.append(fitted)
+        self._fitted_through = observation.index
 
     def _dense_near(self, ids: np.ndarray, observation: Observation,
                     evidence: EpipolarResidual | None) -> np.ndarray | None:
