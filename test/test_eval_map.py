@@ -131,6 +131,31 @@ def test_colmap_camera_from_a_ros_camera_matrix() -> None:
     assert model == "PINHOLE" and np.allclose([float(v) for v in params.split(",")], [700, 500, 320.5, 240.5])
 
 
+class TestExportFrames:
+    """The frames COLMAP reads, and the camera matrix it is given."""
+
+    def test_frames_and_the_k_of_the_camera_info_beside_the_images(self, textured_bag: Path, tmp_path: Path):
+        frames = export_frames(textured_bag, tmp_path / "images", every=2)
+        assert len(frames.names) == 10 and frames.shape == (188, 621)
+        assert all((frames.folder / name).is_file() for name in frames.names)
+        np.testing.assert_allclose(frames.camera_matrix, [[500.0, 0, 310], [0, 500, 94], [0, 0, 1]])
+
+    @pytest.mark.parametrize("k, size", [(np.zeros((3, 3)), (621, 188)),  # a driver's placeholder
+                                         (np.diag([500.0, 500.0, 1.0]), (1242, 375))])  # another size's K
+    def test_no_usable_camera_info_leaves_colmap_to_estimate(self, tmp_path: Path, k: np.ndarray,
+                                                            size: tuple[int, int]):
+        from conftest import textured_frames
+        from moseg_ros.io.bags import BagWriter
+
+        bag = tmp_path / "bag"
+        with BagWriter(bag) as writer:
+            for i, frame in enumerate(textured_frames(4)):
+                stamp = 1_700_000_000_000_000_000 + i * 100_000_000
+                writer.write_image("/cam/image_raw", stamp, "cam", frame, "rgb8", log_time_ns=stamp)
+                writer.write_camera_info("/cam/camera_info", stamp, "cam", k, *size, log_time_ns=stamp)
+        assert export_frames(bag, tmp_path / "images").camera_matrix is None
+
+
 @pytest.fixture(scope="module")
 def street(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The synthetic `map` street, 16 frames at 621x188 (ground-truth masks and poses included)."""

@@ -32,7 +32,8 @@ import cv2
 import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
-from moseg_ros.io.bags import iter_messages, list_topics, read_images, stamp_to_ns
+from moseg_ros.io.bags import (Calibration, camera_info_topic, iter_messages, list_topics, pick_image_topic,
+                               read_images, stamp_to_ns)
 from moseg_ros.io.image import image_to_array
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.synth.street import GT_TOPICS
@@ -55,28 +56,28 @@ class Frames:
 
 
 def export_frames(bag: Path, folder: Path, every: int = 1) -> Frames:
-    """Write every ``every``-th image of the bag as PNG (``frame_000000.png`` ...) into ``folder``."""
+    """Write every ``every``-th image of the bag as PNG (``frame_000000.png`` ...) into ``folder``; the camera
+    matrix is the first valid K of the camera_info beside the image topic for the images' size (as ``moseg
+    process`` gives the frames theirs), None without one (COLMAP then estimates the focal length)."""
     folder.mkdir(parents=True, exist_ok=True)
-    names, stamps, shape = [], [], (0, 0)
-    for i, image in enumerate(read_images(bag)):
+    topics = list_topics(bag)
+    topic = pick_image_topic(topics)
+    calibration = Calibration(bag, camera_info_topic(topics, topic))
+    names, stamps, shape, K = [], [], (0, 0), None
+    for i, image in enumerate(read_images(bag, topic)):
         if i % every:
             continue
         rgb = image.rgb()
         shape = rgb.shape[:2]
+        if K is None:
+            K = calibration.at(image.log_time_ns, shape)
         name = f"frame_{len(names):06d}.png"
         cv2.imwrite(str(folder / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         names.append(name)
         stamps.append(image.stamp_ns)
     if len(names) < 3:
         raise ValueError(f"{bag}: {len(names)} frames taken (every {every}); a map needs at least 3")
-    return Frames(folder, names, stamps, _camera_matrix(bag), shape)
-
-
-def _camera_matrix(bag: Path) -> np.ndarray | None:
-    infos = [topic for topic, msgtype in list_topics(bag).items() if msgtype.endswith("CameraInfo")]
-    for _, _, msg in iter_messages(bag, infos[:1]) if infos else ():
-        return np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
-    return None
+    return Frames(folder, names, stamps, K, shape)
 
 
 def write_colmap_masks(frames: Frames, dynamic: dict[int, np.ndarray], folder: Path) -> int:
