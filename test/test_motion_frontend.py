@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import cv2
 import numpy as np
+import pytest
 
 from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
@@ -143,20 +144,21 @@ class TestMotionFrontEnd:
 
 
 class TestCatchUp:
-    """A refit that skips frames (a background worker slower than the camera) fits their track pairs too."""
+    """A refit that skips frames (a background worker slower than the camera) fits their track pairs too, up to
+    ``catch_up_pairs`` of them, newest first."""
 
     @staticmethod
-    def _pairs(every: int) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
-        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
+    def _pairs(every: int, catch_up_pairs: int) -> tuple[list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, catch_up_pairs=catch_up_pairs))
         for index, frame in enumerate(textured_frames(9)):
             observation = front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
             if index % every == 0:
                 flagged = front_end.refit(observation).flagged
         return [(ids, evidence.distance) for ids, evidence in front_end._pairs], flagged
 
-    def test_the_window_holds_the_same_pairs_as_refitting_every_frame(self):
-        every_frame, flagged_every = self._pairs(1)
-        skipping, flagged_skipping = self._pairs(4)
+    def test_catching_up_on_every_skipped_frame_holds_the_pairs_of_refitting_every_frame(self):
+        every_frame, flagged_every = self._pairs(1, 0)
+        skipping, flagged_skipping = self._pairs(4, 8)
         config = MotionFrontEndConfig()
         assert len(every_frame) == len(skipping) == config.window_length - config.track_motion.gap
         for (ids, distance), (ids_skipping, distance_skipping) in zip(every_frame, skipping):
@@ -164,8 +166,18 @@ class TestCatchUp:
             np.testing.assert_allclose(distance, distance_skipping)
         assert flagged_skipping.size > 10 and np.isin(flagged_skipping, flagged_every).all()
 
+    @pytest.mark.parametrize("catch_up_pairs, expected", [(0, 1), (1, 2), (2, 3), (8, 4)])
+    def test_a_refit_after_skipped_frames_fits_at_most_catch_up_pairs_of_theirs(self, catch_up_pairs, expected):
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, catch_up_pairs=catch_up_pairs))
+        observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
+        front_end.refit(observations[0])
+        front_end.refit(observations[-1])  # frames 2-4 had pairs and were skipped
+        assert len(front_end._pairs) == expected
+        with_own = self._pairs(1, catch_up_pairs)[0]  # refitting every frame, nothing is skipped
+        assert len(with_own) == MotionFrontEndConfig().window_length - MotionFrontEndConfig().track_motion.gap
+
     def test_an_observation_without_its_window_fits_only_its_own_pair(self):
-        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, catch_up_pairs=8))
         observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
         front_end.refit(replace(observations[-1], window=()))
         assert len(front_end._pairs) == 1

@@ -137,6 +137,9 @@ class MotionFrontEndConfig:
     # real streets (docs/experiments.md). 0: off.
     memory_frames: int = 1
     memory_veto: int = 3
+    # The most track pairs of skipped frames a refit fits before its own, newest first (``_catch_up``): each costs
+    # as much as the refit's own pair fit, and a refit that catches up on every skipped frame falls further behind.
+    catch_up_pairs: int = 1
 
 
 def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:
@@ -553,12 +556,13 @@ class MotionFrontEnd:
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
 
     def _catch_up(self, observation: Observation) -> None:
-        """Fit the track pairs of the frames since the last refit that are still in ``observation``'s window: a
-        background refit slower than the camera takes only the newest frame, and the window's track test would
-        otherwise see only every second or third pair, and lose moving tracks (docs/experiments.md). Nothing to do
-        when every frame is refitted."""
+        """Fit the track pairs of up to ``catch_up_pairs`` frames, the newest first, of those since the last refit
+        that are still in ``observation``'s window: a background refit slower than the camera takes only the
+        newest frame, and the window's track test would otherwise see only every second or third pair, and lose
+        moving tracks (docs/experiments.md). Nothing to do when every frame is refitted."""
         gap, first = self.config.track_motion.gap, observation.index - len(observation.window) + 1
-        for index in range(max(self._fitted_through + 1, first + gap), observation.index):
+        missed = range(max(self._fitted_through + 1, first + gap), observation.index)
+        for index in missed[max(len(missed) - self.config.catch_up_pairs, 0):]:
             now = observation.window[index - first]
             fitted = self._fit_pair(*observation.window[index - first - gap], *now, observation.camera_matrix)
             if fitted is not None:
