@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
+from moseg_ros.io.bags import read_images
 from moseg_ros.synth import cli
 from moseg_ros.synth.scenarios import PRESETS, build_scene, check_scene, render_sequence
 from moseg_ros.synth.street import GT_TOPICS, SynthFrame, SynthScene, render_frames, write_bag
@@ -320,3 +321,62 @@ def test_no_two_objects_ever_overlap(seed: int) -> None:
         for box, fp in zip(scene.boxes, prints):
             assert scene.street.x_left <= fp[:, 0].min() and fp[:, 0].max() <= scene.street.x_right or \
                 box.name == "car_crossing", box.name
+
+
+@pytest.fixture(scope="module")
+def scene() -> SynthScene:
+    return build_scene("default", seed=0, n_frames=7, **SMALL)
+
+
+class TestAtRate:
+    """SynthScene.at_rate: the same scene and motion per second seen by a camera at another frame rate."""
+
+    def test_own_rate_keeps_poses_boxes_and_stamps(self, scene: SynthScene) -> None:
+        same = scene.at_rate(10.0)
+        np.testing.assert_array_equal(same.stamps_ns, scene.stamps_ns)
+        np.testing.assert_allclose(same.poses, scene.poses, atol=1e-12)
+        for box, kept in zip(scene.boxes, same.boxes):
+            np.testing.assert_allclose(kept.centres, box.centres, atol=1e-12)
+        assert same.dynamic_ids() == scene.dynamic_ids()
+
+    def test_three_times_the_rate_fills_each_frame_period_with_two_frames(self, scene: SynthScene) -> None:
+        fast = scene.at_rate(30.0)
+        assert fast.n_frames == 3 * (scene.n_frames - 1) + 1
+        assert np.all(np.abs(np.diff(fast.stamps_ns) - 1e9 / 30) <= 1) and fast.stamps_ns[-1] == scene.stamps_ns[-1]
+        np.testing.assert_allclose(fast.poses[::3], scene.poses, atol=1e-9)
+        car = next(b for b in scene.boxes if b.name == "car_oncoming")
+        fast_car = next(b for b in fast.boxes if b.name == "car_oncoming")
+        np.testing.assert_allclose(fast_car.centres[1], car.centres[0] + (car.centres[1] - car.centres[0]) / 3)
+        # the camera's centre steps a third of the way too; movers stay movers, parked cars stay parked
+        np.testing.assert_allclose(fast.poses[2, :3, 3], scene.poses[0, :3, 3] + 2 / 3 * (
+            scene.poses[1, :3, 3] - scene.poses[0, :3, 3]))
+        assert fast.dynamic_ids() == scene.dynamic_ids()
+
+    def test_half_the_rate_takes_every_second_frame(self, scene: SynthScene) -> None:
+        slow = scene.at_rate(5.0)
+        np.testing.assert_array_equal(slow.stamps_ns, scene.stamps_ns[::2])
+        np.testing.assert_allclose(slow.poses, scene.poses[::2], atol=1e-9)
+
+    def test_a_frame_at_the_same_time_is_the_same_image(self, scene: SynthScene) -> None:
+        slow, fast = list(render_frames(scene)), list(render_frames(scene.at_rate(30.0)))
+        assert fast[3].stamp_ns == slow[1].stamp_ns
+        np.testing.assert_array_equal(fast[3].instances, slow[1].instances)
+        assert np.mean(np.abs(fast[3].rgb.astype(int) - slow[1].rgb.astype(int))) < 0.5
+        assert not np.array_equal(fast[2].instances, slow[1].instances)  # a frame in between: the movers moved
+
+    def test_rate_must_be_positive(self, scene: SynthScene) -> None:
+        for rate in (0.0, -10.0, float("nan")):
+            with pytest.raises(ValueError, match="rate must be positive"):
+                scene.at_rate(rate)
+            with pytest.raises(ValueError, match="rate must be positive"):
+                check_scene("default", 7, 414, 125, rate)
+
+    def test_cli_writes_the_frames_of_a_faster_camera(self, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+        parser = argparse.ArgumentParser()
+        cli.add_arguments(parser)
+        args = parser.parse_args(["-o", str(tmp_path / "fast"), "--scenario", "ahead", "--frames", "3",
+                                  "--width", "160", "--height", "64", "--rate", "30"])
+        assert cli.run(args) == 0
+        assert "7 frames 160x64 at 30 Hz" in capsys.readouterr().out
+        stamps = [image.stamp_ns for image in read_images(tmp_path / "fast", GT_TOPICS["image"])]
+        assert len(stamps) == 7 and np.all(np.abs(np.diff(stamps) - 1e9 / 30) <= 1)

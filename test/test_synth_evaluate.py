@@ -161,3 +161,20 @@ def test_unknown_preset_is_refused(capsys):
         assert main(["synth-eval", *argv]) == 2
         err = capsys.readouterr().err
         assert "moseg synth-eval: error:" in err and reason in err
+
+
+def test_a_faster_camera_is_scored_on_every_frame_after_the_same_time(tmp_path, capsys):
+    """At 20 Hz the car ahead (flagged in all of its frames at 10 Hz, measured) is seen in twice the frames after
+    the first three 10 Hz frames' time, and still flagged in most of them; --rate reaches the JSON."""
+    ten = score_scene("ahead", 0, PipelineConfig(), n_frames=8, width=621, instances=False)
+    twenty = score_scene("ahead", 0, PipelineConfig(), n_frames=8, width=621, instances=False, rate_hz=20.0)
+    assert ten["car_ahead"]["seen"] == 5 and twenty["car_ahead"]["seen"] == 9  # 15 frames, the first 6 not counted
+    assert twenty["car_ahead"]["flagged"] >= 7
+    out = tmp_path / "rate.json"
+    assert main(["synth-eval", "--presets", "parked", "--seeds", "1", "--frames", "5", "--rate", "20",
+                 "--json", str(out)]) == 0
+    assert "camera at 20 Hz" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data["rate_hz"] == 20.0 and data["totals"]["static_seen"] == 3  # 9 frames, the first 6 not counted
+    assert main(["synth-eval", "--presets", "parked", "--rate", "0"]) == 2
+    assert "rate must be positive" in capsys.readouterr().err

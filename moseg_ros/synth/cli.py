@@ -2,7 +2,8 @@
 
 Writes /camera/image_raw (rgb8), /camera/camera_info and the ground truth /gt/instances (32SC1),
 /gt/dynamic_mask (mono8, 255 = moving), /gt/depth (32FC1, metres) and /gt/pose (PoseStamped, camera-to-world),
-all with identical stamps per frame at 10 Hz. Frames are rendered and written one at a time.
+all with identical stamps per frame at 10 Hz (or at --rate: the same scene and motion per second seen by a
+faster or slower camera). Frames are rendered and written one at a time.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import time
 from collections.abc import Iterable, Iterator
 
 from moseg_ros.synth.scenarios import DEFAULT_FRAMES, PRESETS, build_scene
-from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH, SynthFrame, render_frames, write_frames
+from moseg_ros.synth.street import FRAME_RATE_HZ, KITTI_HEIGHT, KITTI_WIDTH, SynthFrame, render_frames, write_frames
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -26,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="number of frames at 10 Hz (default: 40; the map scenario 120)")
     parser.add_argument("--width", type=int, default=KITTI_WIDTH, help=f"image width (default: {KITTI_WIDTH})")
     parser.add_argument("--height", type=int, default=KITTI_HEIGHT, help=f"image height (default: {KITTI_HEIGHT})")
+    parser.add_argument("--rate", type=float, default=FRAME_RATE_HZ, metavar="HZ",
+                        help="the camera's frame rate; the scene and its motion per second stay those of --frames at "
+                             "10 Hz (default: 10)")
     parser.add_argument("--start-ns", type=int, default=None,
                         help="stamp of the first frame in nanoseconds (default: the generator's fixed epoch)")
 
@@ -58,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         if args.frames < 2:
             raise ValueError(f"--frames must be at least 2, got {args.frames}")
         scene = build_scene(args.scenario, seed=args.seed, n_frames=args.frames, width=args.width,
-                            height=args.height)
+                            height=args.height, rate_hz=args.rate)
         frames = _Timed(render_frames(scene))
         start = time.perf_counter()
         counts = write_frames(frames, scene.K, scene.width, scene.height, args.output, start_ns=args.start_ns)
@@ -68,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     moving = scene.dynamic_ids()
     print(f"wrote {args.output}: scenario {scene.name!r}, seed {args.seed}, {frames.count} frames "
-          f"{scene.width}x{scene.height}")
+          f"{scene.width}x{scene.height} at {args.rate:g} Hz")
     for topic, count in counts.items():
         print(f"  {topic:24s} {count:6d} messages")
     for box_id, name in scene.object_names().items():

@@ -2,12 +2,14 @@
 
 For every preset and seed the scene is rendered and the pipeline runs over it frame by frame. By default it
 gets no instances and finds the objects itself; an object-frame (an object with at least --min-area pixels
-in a frame, after the first --skip frames) counts as flagged when at least --cover of its pixels lie in the
-dynamic mask. With --instances (always for object_level) the exact instance maps are its upstream instances
-(what `use_instances` gives the node) and an object-frame is flagged when its id is among the frame's dynamic
-ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
+in a frame, after the time of the first --skip frames at 10 Hz) counts as flagged when at least --cover of its
+pixels lie in the dynamic mask. With --instances (always for object_level) the exact instance maps are its
+upstream instances (what `use_instances` gives the node) and an object-frame is flagged when its id is among the
+frame's dynamic ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
 as name:flagged/seen, * = moving), the totals per kind of object and overall, and how the published masks
 cover the moving objects' pixels over the scored frames (IoU, precision, recall); --json writes them.
+With --rate a camera running at that rate sees the same scenes (the same motion per second, so a 30 Hz camera
+sees a third of it per frame), and every frame it takes is scored.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ import numpy as np
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
-from moseg_ros.synth.street import KITTI_HEIGHT, KITTI_WIDTH
+from moseg_ros.synth.street import FRAME_RATE_HZ, KITTI_HEIGHT, KITTI_WIDTH
 from moseg_ros.timing import Pacer
 
 # Every preset but map, which is the default's movers at half the camera speed (made for SfM, not a new case).
@@ -39,7 +41,7 @@ def kitti_height(width: int) -> int:
 def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int = 16, width: int = 621,
                 min_area: int = 60, skip: int = 3, instances: bool = True,
                 cover: float = 0.5, live: float = 0.0, pixels: Counter[str] | None = None,
-                withheld: tuple[str, ...] = ()) -> dict[str, dict[str, int | bool]]:
+                withheld: tuple[str, ...] = (), rate_hz: float = FRAME_RATE_HZ) -> dict[str, dict[str, int | bool]]:
     """Per object of one rendered preset: {"moving": truth, "flagged": frames flagged, "seen": frames counted}.
 
     The height keeps KITTI's aspect ratio. ``instances``: give the pipeline the exact instance maps (flagged =
@@ -47,10 +49,13 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline). ``pixels``: when given,
     the scored frames' pixel counts of the dynamic mask against the moving objects' pixels are added to it
     (``tp``, ``fp``, ``fn``). ``withheld``: with ``instances``, the objects whose names start with one of these are
-    left out of the instance maps (a segmenter that does not know them) and flagged by ``cover``.
+    left out of the instance maps (a segmenter that does not know them) and flagged by ``cover``. ``rate_hz``: the
+    camera's rate (``build_scene``); ``n_frames`` and ``skip`` count frames at the presets' 10 Hz, and every frame
+    after the time of the first ``skip`` is scored.
     """
     height = kitti_height(width)
-    sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height)
+    sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height, rate_hz=rate_hz)
+    skip = round(skip * rate_hz / FRAME_RATE_HZ)
     unknown = [obj for obj, name in sequence.object_names.items() if name.startswith(withheld)] if withheld else []
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
@@ -131,7 +136,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--presets", default=",".join(EVAL_PRESETS),
                         help=f"comma-separated presets (default: {', '.join(EVAL_PRESETS)})")
     parser.add_argument("--seeds", type=int, default=2, help="seeds 0..N-1 of every preset (default 2)")
-    parser.add_argument("--frames", type=int, default=16)
+    parser.add_argument("--frames", type=int, default=16, help="frames at the presets' 10 Hz (default 16)")
+    parser.add_argument("--rate", type=float, default=FRAME_RATE_HZ, metavar="HZ",
+                        help="the camera's frame rate: the same scenes and motion per second seen at this rate "
+                             "(default 10, the presets' own)")
     parser.add_argument("--width", type=int, default=621, help="image width; the height keeps KITTI's aspect ratio")
     parser.add_argument("--instances", action="store_true",
                         help="give the pipeline the exact instance maps (always so for object_level)")
@@ -144,7 +152,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_settings_arguments(parser)  # e.g. --set flow_preset=fast, --set ground_contact=false
     add_live_argument(parser)
     parser.add_argument("--min-area", type=int, default=60, help="smallest object counted (pixels)")
-    parser.add_argument("--skip", type=int, default=3, help="first frames not counted (no evidence yet)")
+    parser.add_argument("--skip", type=int, default=3, help="first frames at 10 Hz not counted (no evidence yet)")
     parser.add_argument("--json", type=Path, help="write the per-scene rows and the totals here")
 
 
@@ -157,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         for preset in presets:
-            check_scene(preset, args.frames, args.width, kitti_height(args.width))
+            check_scene(preset, args.frames, args.width, kitti_height(args.width), args.rate)
     except ValueError as error:
         print(f"moseg synth-eval: error: {error}", file=sys.stderr)
         return 2
@@ -172,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             scene = score_scene(preset, seed, config, n_frames=args.frames, width=args.width,
                                 min_area=args.min_area, skip=args.skip, cover=args.cover,
                                 instances=args.instances or config.method == "object_level", live=args.live,
-                                pixels=pixels, withheld=tuple(args.withhold))
+                                pixels=pixels, withheld=tuple(args.withhold), rate_hz=args.rate)
             scenes.append(scene)
             rows.append({"preset": preset, "seed": seed, "objects": scene})
             print(f"{preset:10s} {seed:2d}  " + " ".join(
@@ -184,10 +192,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"moving object-frames flagged {total['moving_flagged']}/{total['moving_seen']} "
           f"({100 * total['moving_flagged_fraction']:.1f} %), static object-frames flagged "
           f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
-          f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact})")
+          f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact}, camera at "
+          f"{args.rate:g} Hz)")
     print(f"moving pixels: IoU {total['pixel_iou']:.3f}, precision {total['pixel_precision']:.3f}, "
           f"recall {total['pixel_recall']:.3f} (the published masks over the scored frames)")
     if args.json:
-        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live},
-                                        indent=2))
+        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live,
+                                         "rate_hz": args.rate}, indent=2))
     return 0

@@ -24,6 +24,7 @@ import numpy as np
 from moseg_ros.synth.street import (
     DEFAULT_START_NS,
     FRAME_PERIOD_NS,
+    FRAME_RATE_HZ,
     KITTI_HEIGHT,
     KITTI_WIDTH,
     Box,
@@ -316,9 +317,11 @@ PRESETS: dict[str, Callable[[int, int, int, int], SynthScene]] = {
 }
 
 
-def check_scene(scenario: str, n_frames: int, width: int, height: int) -> None:
+def check_scene(scenario: str, n_frames: int, width: int, height: int, rate_hz: float = FRAME_RATE_HZ) -> None:
     """ValueError saying what is wrong with a preset's arguments (an unknown preset, fewer than 2 frames, an image
-    under 16x16); tools call it before any slow work."""
+    under 16x16, a camera rate that is not positive); tools call it before any slow work."""
+    if not rate_hz > 0:
+        raise ValueError(f"the camera's rate must be positive, got {rate_hz} Hz")
     if scenario not in PRESETS:
         raise ValueError(f"unknown scenario {scenario!r}; presets: {', '.join(PRESETS)}")
     if n_frames < 2:
@@ -328,22 +331,26 @@ def check_scene(scenario: str, n_frames: int, width: int, height: int) -> None:
 
 
 def build_scene(scenario: str = "default", *, seed: int = 0, n_frames: int = 40, width: int = KITTI_WIDTH,
-                height: int = KITTI_HEIGHT) -> SynthScene:
-    """The scene of a preset; ValueError as ``check_scene`` for bad arguments."""
-    check_scene(scenario, int(n_frames), int(width), int(height))
-    return PRESETS[scenario](int(seed), int(n_frames), int(width), int(height))
+                height: int = KITTI_HEIGHT, rate_hz: float = FRAME_RATE_HZ) -> SynthScene:
+    """The scene of a preset: ``n_frames`` frames at the presets' 10 Hz, seen by a camera running at ``rate_hz``
+    (``SynthScene.at_rate``: the same motion per second, so a 30 Hz camera sees a third of it per frame);
+    ValueError as ``check_scene`` for bad arguments."""
+    check_scene(scenario, int(n_frames), int(width), int(height), float(rate_hz))
+    scene = PRESETS[scenario](int(seed), int(n_frames), int(width), int(height))
+    return scene if rate_hz == FRAME_RATE_HZ else scene.at_rate(float(rate_hz))
 
 
 def iter_frames(scenario: str = "default", *, seed: int = 0, n_frames: int = 40, width: int = KITTI_WIDTH,
-                height: int = KITTI_HEIGHT) -> Iterator[SynthFrame]:
-    """Render a preset frame by frame (bounded memory)."""
-    return render_frames(build_scene(scenario, seed=seed, n_frames=n_frames, width=width, height=height))
+                height: int = KITTI_HEIGHT, rate_hz: float = FRAME_RATE_HZ) -> Iterator[SynthFrame]:
+    """Render a preset frame by frame (bounded memory); arguments as ``build_scene``."""
+    return render_frames(build_scene(scenario, seed=seed, n_frames=n_frames, width=width, height=height,
+                                     rate_hz=rate_hz))
 
 
 def render_sequence(scenario: str = "default", *, seed: int = 0, n_frames: int = 40, width: int = KITTI_WIDTH,
-                    height: int = KITTI_HEIGHT) -> SynthSequence:
-    """Render a whole preset into memory (about 5.6 MB per frame at 1242x375)."""
-    scene = build_scene(scenario, seed=seed, n_frames=n_frames, width=width, height=height)
+                    height: int = KITTI_HEIGHT, rate_hz: float = FRAME_RATE_HZ) -> SynthSequence:
+    """Render a whole preset into memory (about 5.6 MB per frame at 1242x375); arguments as ``build_scene``."""
+    scene = build_scene(scenario, seed=seed, n_frames=n_frames, width=width, height=height, rate_hz=rate_hz)
     return SynthSequence(K=scene.K, width=scene.width, height=scene.height, frames=list(render_frames(scene)),
                          dynamic_ids=scene.dynamic_ids(), object_names=scene.object_names())
 

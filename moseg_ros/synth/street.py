@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -34,6 +34,7 @@ __all__ = [
     "KITTI_WIDTH",
     "KITTI_HEIGHT",
     "FRAME_PERIOD_NS",
+    "FRAME_RATE_HZ",
     "DEFAULT_START_NS",
     "GT_TOPICS",
     "CAR_COLOURS",
@@ -63,6 +64,7 @@ __all__ = [
 KITTI_WIDTH, KITTI_HEIGHT = 1242, 375
 _KITTI_FX, _KITTI_FY, _KITTI_CX, _KITTI_CY = 721.5377, 721.5377, 609.5593, 172.8540
 FRAME_PERIOD_NS = 100_000_000  # 10 Hz
+FRAME_RATE_HZ = 1e9 / FRAME_PERIOD_NS
 DEFAULT_START_NS = 1_700_000_000 * 1_000_000_000
 GT_TOPICS = {
     "image": "/camera/image_raw",
@@ -299,6 +301,36 @@ class SynthScene:
     def object_names(self) -> dict[int, str]:
         """Box id -> name (e.g. "car_ahead", "parked_car_1")."""
         return {b.id: b.name for b in self.boxes}
+
+    def at_rate(self, rate_hz: float) -> SynthScene:
+        """The same scene seen by a camera that runs at ``rate_hz``: the same motion per second over the same
+        time, frames ``1 / rate_hz`` apart from the first one's stamp up to the last one's.
+
+        The camera's centre and yaw and every box's centre and yaw are interpolated linearly in time between
+        the scene's frames: exact for the boxes, which move at constant velocity, and for the camera's centre,
+        which ``camera_poses`` steps straight from frame to frame; its yaw follows the chords of its sinusoid.
+        At the scene's own rate the poses come back unchanged (to rounding). ValueError for a rate that is not positive.
+        """
+        if not rate_hz > 0:
+            raise ValueError(f"the camera's rate must be positive, got {rate_hz} Hz")
+        stamps = self.stamps_ns.astype(np.int64)
+        step = 1e9 / rate_hz
+        count = int((stamps[-1] - stamps[0]) / step + 1e-6) + 1
+        new_stamps = stamps[0] + np.rint(step * np.arange(count)).astype(np.int64)
+        times, new_times = (stamps - stamps[0]).astype(np.float64), (new_stamps - stamps[0]).astype(np.float64)
+
+        def along(values: np.ndarray) -> np.ndarray:
+            """(N, ...) values per frame -> (M, ...) at the new stamps, linear in time."""
+            flat = values.reshape(len(values), -1)
+            return np.stack([np.interp(new_times, times, column) for column in flat.T], axis=1).reshape(
+                (len(new_times),) + values.shape[1:])
+
+        yaws = np.unwrap(np.arctan2(self.poses[:, 0, 2], self.poses[:, 2, 2]))
+        poses = np.tile(np.eye(4), (len(new_times), 1, 1))
+        poses[:, :3, :3] = _yaw_matrix(along(yaws))
+        poses[:, :3, 3] = along(self.poses[:, :3, 3])
+        boxes = [replace(box, centres=along(box.centres), yaws=along(box.yaws)) for box in self.boxes]
+        return replace(self, poses=poses, stamps_ns=new_stamps, boxes=boxes)
 
 
 @dataclass
