@@ -55,7 +55,7 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     """
     height = kitti_height(width)
     sequence = render_sequence(preset, seed=seed, n_frames=n_frames, width=width, height=height, rate_hz=rate_hz)
-    skip = round(skip * rate_hz / FRAME_RATE_HZ)
+    skipped = round(skip * rate_hz / FRAME_RATE_HZ)
     unknown = [obj for obj, name in sequence.object_names.items() if name.startswith(withheld)] if withheld else []
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
@@ -67,7 +67,7 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
             if instances:
                 given = np.where(np.isin(frame.instances, unknown), 0, frame.instances) if unknown else frame.instances
             result = pipeline.process(frame.rgb, frame.stamp_ns, given, next_frame_at=pacer.next_due)
-            if t < skip:
+            if t < skipped:
                 continue
             if pixels is not None:
                 pixels.update(pixel_counts(result.masks.dynamic > 0, np.isin(frame.instances,

@@ -35,6 +35,7 @@ from moseg_ros.synth.street import (
     SynthSequence,
     Texture,
     camera_poses,
+    check_rate,
     kitti_intrinsics,
     paint_car,
     paint_facade,
@@ -320,8 +321,7 @@ PRESETS: dict[str, Callable[[int, int, int, int], SynthScene]] = {
 def check_scene(scenario: str, n_frames: int, width: int, height: int, rate_hz: float = FRAME_RATE_HZ) -> None:
     """ValueError saying what is wrong with a preset's arguments (an unknown preset, fewer than 2 frames, an image
     under 16x16, a camera rate that is not positive); tools call it before any slow work."""
-    if not rate_hz > 0:
-        raise ValueError(f"the camera's rate must be positive, got {rate_hz} Hz")
+    check_rate(rate_hz)
     if scenario not in PRESETS:
         raise ValueError(f"unknown scenario {scenario!r}; presets: {', '.join(PRESETS)}")
     if n_frames < 2:
@@ -337,6 +337,7 @@ def build_scene(scenario: str = "default", *, seed: int = 0, n_frames: int = 40,
     ValueError as ``check_scene`` for bad arguments."""
     check_scene(scenario, int(n_frames), int(width), int(height), float(rate_hz))
     scene = PRESETS[scenario](int(seed), int(n_frames), int(width), int(height))
+    # At the presets' own rate the scene as built: its frames stay byte-identical (at_rate would round the poses).
     return scene if rate_hz == FRAME_RATE_HZ else scene.at_rate(float(rate_hz))
 
 

@@ -45,6 +45,7 @@ __all__ = [
     "SynthFrame",
     "SynthSequence",
     "StreetRenderer",
+    "check_rate",
     "kitti_intrinsics",
     "camera_poses",
     "box_face_layout",
@@ -80,6 +81,12 @@ _MAX_LEVEL = 7  # coarsest mip level in the atlas: 4x4 texels for a 512 tile
 _MIN_TILE = 2 << _MAX_LEVEL  # the coarsest level of the smallest tile keeps 2x2 texels
 _ATLAS_TILE = 1024  # the largest tile; every texture's mip levels share its row bands in the atlas
 _NEAR = 0.05  # metres; box geometry nearer than this to the camera plane is clipped for the bounding rectangle
+
+
+def check_rate(rate_hz: float) -> None:
+    """ValueError unless ``rate_hz``, a camera's frame rate, is positive (NaN is not)."""
+    if not rate_hz > 0:
+        raise ValueError(f"the camera's rate must be positive, got {rate_hz} Hz")
 
 
 def kitti_intrinsics(width: int = KITTI_WIDTH, height: int = KITTI_HEIGHT) -> np.ndarray:
@@ -311,8 +318,7 @@ class SynthScene:
         which ``camera_poses`` steps straight from frame to frame; its yaw follows the chords of its sinusoid.
         At the scene's own rate the poses come back unchanged (to rounding). ValueError for a rate that is not positive.
         """
-        if not rate_hz > 0:
-            raise ValueError(f"the camera's rate must be positive, got {rate_hz} Hz")
+        check_rate(rate_hz)
         stamps = self.stamps_ns.astype(np.int64)
         step = 1e9 / rate_hz
         count = int((stamps[-1] - stamps[0]) / step + 1e-6) + 1
