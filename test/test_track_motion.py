@@ -14,12 +14,11 @@ from conftest import oncoming_street_flow, pan_follow_flow
 from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
-                                         beyond_allowance,
-                                         dense_parallax, far_behind, footing_columns, footing_excess, ground_floor,
-                                         ground_parallax_ratio, ground_slope, guessed_camera_matrix, may_be_planar,
-                                         moving_tracks, nearer_than_road, pair_evidence, pair_residual,
-                                         pair_residuals, row_medians, signed_parallax, standing_rows,
-                                         standing_shortfall)
+                                         beyond_allowance, decided_ratios, dense_parallax, far_behind,
+                                         footing_columns, footing_excess, ground_floor, ground_parallax_ratio,
+                                         ground_slope, guessed_camera_matrix, may_be_planar, moving_tracks,
+                                         nearer_than_road, pair_evidence, pair_residual, pair_residuals, row_medians,
+                                         signed_parallax, standing_rows, standing_shortfall)
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -438,6 +437,52 @@ class TestGroundParallaxRatio:
         assert ground_parallax_ratio(tracks[::25, 0], few) is None
 
 
+def road_with_far_end(seed: int = 3, noise_px: float = 0.5):
+    """``road`` (6 frames) plus 100 road points 60-200 m ahead, a few pixels below the epipole, tracked with
+    ``noise_px`` of noise: where the floor's parallax is a pixel or two. Returns tracks (N, 6, 2), is_car and
+    is_far (N,)."""
+    tracks, _, is_car = road(seed=seed)
+    rng = np.random.default_rng(seed)
+    far = np.column_stack([rng.uniform(-8, 8, 100), np.full(100, 1.5), rng.uniform(60, 200, 100)])
+    far_tracks = np.stack([project(far, np.array([0.0, 0.0, 1.0 * t])) for t in range(6)], axis=1)
+    far_tracks += rng.normal(0, noise_px, far_tracks.shape)
+    tracks = np.vstack([tracks, far_tracks.astype(np.float32)])
+    return tracks, np.r_[is_car, np.zeros(100, bool)], np.r_[np.zeros(540, bool), np.ones(100, bool)]
+
+
+class TestDecidedRatios:
+    def test_only_ratios_over_a_floor_of_enough_noise_sigmas_are_decided(self):
+        tracks, _, _ = road_with_far_end()
+        x1 = tracks[:, 0].astype(np.float64)
+        parallax = _parallax(tracks[:, 0], tracks[:, 5])
+        config = TrackMotionConfig()
+        ground = ground_parallax_ratio(x1, parallax, config)
+        floor = ground_floor(x1, parallax, config)
+        decided = decided_ratios(x1, parallax, ground, config, ground_slope(x1, parallax, config), noise=0.5)
+        assert decided.shape == (640,) and decided.dtype == np.float32
+        np.testing.assert_array_equal(np.isfinite(decided), floor >= config.ground_ratio_noise * 0.5)
+        np.testing.assert_array_equal(decided[np.isfinite(decided)], ground[np.isfinite(decided)])
+        assert np.isnan(decided_ratios(x1, parallax, ground, config, ground_slope(x1, parallax, config),
+                                       noise=np.inf)).all()
+
+    def test_the_noisy_far_end_is_not_flagged_and_the_followed_car_still_is(self):
+        tracks, is_car, is_far = road_with_far_end()
+        evidence = pair_evidence(tracks[:, 0], tracks[:, 5], TrackMotionConfig(), K)
+        ratio = TrackMotionConfig().ground_ratio
+        assert not (evidence.ground[is_far] < ratio).any()
+        assert np.isfinite(evidence.ground[is_car]).mean() > 0.5 and (evidence.ground[is_car] < ratio).sum() > 20
+        ungated = pair_evidence(tracks[:, 0], tracks[:, 5], dataclasses.replace(TrackMotionConfig(),
+                                                                                 ground_ratio_noise=0.0), K)
+        assert (ungated.ground[is_far] < ratio).any()  # what the noise does without the gate
+
+    def test_quiet_tracks_keep_the_ratio_near_the_horizon(self):
+        """The same far end tracked with a tenth of the noise: its floor of a pixel or two is decided."""
+        tracks, _, is_far = road_with_far_end(noise_px=0.05)
+        evidence = pair_evidence(tracks[:, 0], tracks[:, 5], TrackMotionConfig(), K)
+        assert np.isfinite(evidence.ground[is_far]).sum() > 5
+        assert not (evidence.ground[is_far] < TrackMotionConfig().ground_ratio).any()
+
+
 class TestGroundShortfall:
     def test_the_road_and_the_static_boxes_are_never_short_and_the_followed_car_is(self):
         tracks, is_road, is_car = road()
@@ -510,12 +555,15 @@ class TestApertureShare:
 def test_the_followed_car_is_caught_by_the_ground_and_missed_by_residual_and_cheirality():
     tracks, _, is_car = road()
     residuals = np.full((540, 4), np.nan, np.float32)
-    signed, ground = np.full_like(residuals, np.nan), np.full_like(residuals, np.nan)
+    signed, ground, shortfall = (np.full_like(residuals, np.nan) for _ in range(3))
     for m in range(4):
-        distance, parallax, ratio, *_ = pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K)
-        residuals[:, m], signed[:, m], ground[:, m] = distance, parallax, ratio
+        distance, parallax, ratio, _, short = pair_evidence(tracks[:, m], tracks[:, m + 2], TrackMotionConfig(), K)
+        residuals[:, m], signed[:, m], ground[:, m], shortfall[:, m] = distance, parallax, ratio, short
     assert not moving_tracks(residuals, signed=signed)[is_car].any()  # parallax ~0: neither test sees it
-    flagged = moving_tracks(residuals, signed=signed, ground=ground)
+    # The ratio decides where the floor's parallax stands out of the pairs' noise, the shortfall the rest.
+    by_ratio = moving_tracks(residuals, signed=signed, ground=ground)
+    assert by_ratio[is_car].mean() > 0.8 and by_ratio[~is_car].mean() < 0.01
+    flagged = moving_tracks(residuals, signed=signed, ground=ground, shortfall=shortfall)
     assert flagged[is_car].mean() > 0.9 and flagged[~is_car].mean() < 0.01
 
 

@@ -37,7 +37,8 @@ linearly with the row below the epipole. ``ground_parallax_ratio`` fits that flo
 depths of the tracks, band by band below the epipole (a low quantile: the road, not the objects on it), and
 gives each track its parallax over the parallax the floor would have there; a track moves when its median
 ratio is below ``ground_ratio``. Pixels where the floor's parallax is below ``ground_min_px`` (near the
-horizon) are not decided. A track also moves when, in most pairs, its parallax falls short of the floor's by
+horizon) are not decided, and the ratio test alone takes only those where it reaches ``ground_ratio_noise``
+times the pair's noise. A track also moves when, in most pairs, its parallax falls short of the floor's by
 more than ``shortfall_px`` and below ``shortfall_ratio`` of it (the mirror of the footing test below: a margin
 and pixels rather than the ratio alone, whose low bar is set by the noise near the horizon), the floor taken at
 the row its object stands on (``standing_rows``: its column's lowest track at its own inverse depth) rather
@@ -123,6 +124,12 @@ class TrackMotionConfig:
     screen_stride: int = 4
     screen_iterations: int = 50
     ground_ratio: float = 0.3
+    # The ratio alone is decided only where the floor's parallax is at least this many times the pair's noise (the
+    # robust sigma of F's inliers' distances), so that its bar lies five sigmas under the floor: near the horizon
+    # the floor is a pixel or two, and there the far end of a synthetic street (sigma 0.55 px over the window's
+    # long pair at 621 px) came out farther than the road, while a car followed 30 m ahead under the same floor
+    # with sigma 0.14 px is decided (docs/experiments.md). The shortfall test, in pixels, decides the rest.
+    ground_ratio_noise: float = 7.0
     # The ground test in pixels (the module's docstring; docs/experiments.md): the parallax short of the floor's by
     # this many pixels and below this share of it.
     shortfall_px: float = 1.0
@@ -647,7 +654,7 @@ def _band_below(x: np.ndarray, candidates: np.ndarray, tested: np.ndarray,
 
 class PairEvidence(NamedTuple):
     """One frame pair's evidence per track: ``distance`` as ``pair_residual``; given a camera matrix and a
-    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``ground_parallax_ratio``), ``footing``
+    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``decided_ratios``), ``footing``
     (``footing_excess``) and ``shortfall`` (``standing_shortfall``), each None when not decided."""
 
     distance: np.ndarray
@@ -682,14 +689,15 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     homography, h_inliers = (homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
                              if planar_check and may_be_planar(x1, x2, f_inliers, config) else (None, None))
     f_squared = sampson_distance(fundamental[None], x1, x2)[0]
+    # The pair's noise: the robust sigma of F's inliers' distances (pixels).
+    noise = 1.4826 * float(np.median(np.sqrt(f_squared[f_inliers]))) if f_inliers.any() else np.inf
     planar = False
     if homography is not None:
         h_squared = 0.5 * homography_transfer_error(homography[None], x1, x2)[0]
         # F is degenerate when the homography explains about as many tracks, or when Torr's GRIC prefers it.
         planar = h_inliers.sum() >= config.homography_preference * f_inliers.sum()
         if not planar:
-            sigma = max(1.4826 * float(np.median(np.sqrt(f_squared[f_inliers]))), config.gric_min_sigma_px)
-            planar = homography_preferred(f_squared, h_squared, sigma)
+            planar = homography_preferred(f_squared, h_squared, max(noise, config.gric_min_sigma_px))
     if planar:
         # F is degenerate: no translation to take a sign from.
         return PairEvidence(np.sqrt(h_squared).astype(np.float32))
@@ -707,8 +715,18 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
         return PairEvidence(distance, signed, None, footing_excess(x1, parallax, None, config, slope))
     ground = ground_parallax_ratio(x1, parallax, config, slope)
     columns = footing_columns(x1, parallax, ground, config)  # once for the footing and shortfall tests
-    return PairEvidence(distance, signed, ground, footing_excess(x1, parallax, ground, config, slope, columns),
+    return PairEvidence(distance, signed, decided_ratios(x1, parallax, ground, config, slope, noise),
+                        footing_excess(x1, parallax, ground, config, slope, columns),
                         standing_shortfall(x1, parallax, ground, config, slope, columns))
+
+
+def decided_ratios(x1: np.ndarray, parallax: Parallax, ground: np.ndarray, config: TrackMotionConfig,
+                   slope: float, noise: float) -> np.ndarray:
+    """(N,) float32 the ``ground`` ratios (``ground_parallax_ratio``) that the ratio test decides on: NaN where the
+    floor's parallax is below ``ground_ratio_noise`` times the pair's ``noise`` (pixels; the footing and shortfall
+    tests keep every ratio)."""
+    floor = ground_floor(x1, parallax, config, slope)
+    return np.where(floor >= config.ground_ratio_noise * noise, ground, np.nan).astype(np.float32)
 
 
 def beyond_allowance(distance: np.ndarray, x1: np.ndarray, x2: np.ndarray, allowance: float) -> np.ndarray:
