@@ -17,6 +17,7 @@ from moseg_ros.io.bags import (
     BagWriter,
     Calibration,
     camera_info_topic,
+    image_camera,
     iter_messages,
     list_topics,
     ns_to_stamp_fields,
@@ -234,6 +235,22 @@ class TestCalibration:
     def test_no_topic_no_calibration(self, tmp_path: Path) -> None:
         calibration = Calibration(self.bag(tmp_path), None)
         assert calibration.topic is None and calibration.at(T0, (375, 1242)) is None
+
+
+def test_image_camera_pairs_the_image_topic_with_the_camera_info_beside_it(tmp_path: Path) -> None:
+    path = tmp_path / "camera"
+    with BagWriter(path) as writer:
+        writer.write_image("/cam/image_raw", T0, "cam", np.zeros((375, 1242), np.uint8), "mono8", log_time_ns=T0)
+        writer.write_image("/gt/dynamic_mask", T0, "cam", np.zeros((375, 1242), np.uint8), "mono8", log_time_ns=T0)
+        writer.write_camera_info("/cam/camera_info", T0, "cam", K, 1242, 375, log_time_ns=T0)
+        writer.write_image("/other/image_raw", T0, "o", np.zeros((4, 4), np.uint8), "mono8", log_time_ns=T0)
+    topic, calibration = image_camera(path, "/cam/image_raw")
+    assert topic == "/cam/image_raw" and calibration.topic == "/cam/camera_info"
+    np.testing.assert_array_equal(calibration.at(T0, (375, 1242)), K)
+    topic, calibration = image_camera(path, "/other/image_raw")
+    assert topic == "/other/image_raw" and calibration.topic is None and calibration.at(T0, (4, 4)) is None
+    with pytest.raises(ValueError, match="several image topics"):
+        image_camera(path)
 
 
 def test_errors_are_specific(bag: Path, tmp_path: Path) -> None:

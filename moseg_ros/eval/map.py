@@ -32,8 +32,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
-from moseg_ros.io.bags import (Calibration, camera_info_topic, iter_messages, list_topics, pick_image_topic,
-                               read_images, stamp_to_ns)
+from moseg_ros.io.bags import image_camera, iter_messages, list_topics, read_images, stamp_to_ns
 from moseg_ros.io.image import image_to_array
 from moseg_ros.params import add_settings_arguments, pipeline_config
 from moseg_ros.synth.street import GT_TOPICS
@@ -60,9 +59,7 @@ def export_frames(bag: Path, folder: Path, every: int = 1) -> Frames:
     matrix is the first valid K of the camera_info beside the image topic for the images' size (as ``moseg
     process`` gives the frames theirs), None without one (COLMAP then estimates the focal length)."""
     folder.mkdir(parents=True, exist_ok=True)
-    topics = list_topics(bag)
-    topic = pick_image_topic(topics)
-    calibration = Calibration(bag, camera_info_topic(topics, topic))
+    topic, calibration = image_camera(bag)
     names, stamps, shape, K = [], [], (0, 0), None
     for i, image in enumerate(read_images(bag, topic)):
         if i % every:

@@ -44,6 +44,7 @@ __all__ = [
     "CAMERA_INFO_TYPE",
     "Calibration",
     "camera_info_topic",
+    "image_camera",
     "stamp_to_ns",
     "ns_to_stamp_fields",
     "list_topics",
@@ -499,6 +500,14 @@ def pick_image_topic(topics: dict[str, str], requested: str | None = None) -> st
         raise ValueError(f"no image topic (sensor_msgs/Image or CompressedImage) outside {GROUND_TRUTH_PREFIX}; "
                          f"topics: {sorted(topics)}")
     raise ValueError(f"several image topics, choose one: {candidates}")
+
+
+def image_camera(path: str | Path, requested: str | None = None) -> tuple[str, Calibration]:
+    """The bag's image topic (``pick_image_topic`` of ``requested``) and the Calibration of the camera_info beside
+    it (``camera_info_topic``; one without a topic when there is none), as the node would pair them."""
+    topics = list_topics(path)
+    topic = pick_image_topic(topics, requested)
+    return topic, Calibration(path, camera_info_topic(topics, topic))
 
 
 @dataclasses.dataclass(frozen=True)

@@ -23,8 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.io.bags import (BagDamagedError, BagWriter, Calibration, camera_info_topic, list_topics,
-                               pick_image_topic, read_images)
+from moseg_ros.io.bags import BagDamagedError, BagWriter, Calibration, image_camera, read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -56,9 +55,7 @@ def process_bag(bag: str | Path, output: str | Path, *, image_topic: str | None 
                               "input_damage": None}
     seconds: list[float] = []
     start = time.perf_counter()
-    topics = list_topics(bag)
-    topic = pick_image_topic(topics, image_topic)  # an unusable input fails before the output exists
-    calibration = Calibration(bag, camera_info_topic(topics, topic))
+    topic, calibration = image_camera(bag, image_topic)  # an unusable input fails before the output exists
     counts["camera_info"] = calibration.topic
     counts["calibrated_frames"] = 0
     if overwrite:
