@@ -3,7 +3,7 @@
 Layout: ``DIR/JPEGImages/480p/<clip>/*.jpg`` (or .png) and ``DIR/Annotations/480p/<clip>/*.png``, where a
 non-zero annotation pixel belongs to the moving object. Frames are taken in sorted file-name order; an
 annotation is paired with the image of the same stem or, when no stems match, by sorted order. For every
-clip that has annotations, the pipeline runs over the frames exactly as the node would (30 Hz stamps) and each
+clip that has annotations, the pipeline runs over the frames exactly as the node would (stamps at 24 Hz) and each
 annotated frame's dynamic mask is compared with its annotation. The first frame of each clip (no motion
 evidence yet) is not scored.
 
@@ -32,7 +32,7 @@ from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer
 
-FRAME_PERIOD_NS = 1_000_000_000 / 30  # DAVIS clips are 30 fps video
+FRAME_PERIOD_NS = 1_000_000_000 / 24  # DAVIS clips are 24 fps video (Perazzi et al., CVPR 2016)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 RESOLUTION = "480p"
 
