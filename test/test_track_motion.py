@@ -74,14 +74,23 @@ class TestBeyondAllowance:
     def test_shape_dtype_and_known_values(self):
         x1 = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 0.0]])
         x2 = np.array([[100.0, 0.0], [10.0, 20.0], [3.0, 4.0]])
-        out = beyond_allowance(np.array([4.0, 0.5, 1.0]), x1, x2, 0.03)
+        out = beyond_allowance(np.array([4.0, 0.5, 1.0]), x2 - x1, 0.03)
         assert out.shape == (3,) and out.dtype == np.float32
         np.testing.assert_allclose(out, [1.0, 0.0, 0.85], atol=1e-6)
+
+    def test_a_dense_flow_takes_its_own_length_off_each_pixel(self):
+        residual = np.full((2, 3), 2.0)
+        flow = np.zeros((2, 3, 2))
+        flow[0, 0] = (30.0, 40.0)  # 50 px: 1.5 px off at 0.03
+        flow[1, 2] = (0.0, 100.0)  # 3 px off: none left
+        out = beyond_allowance(residual, flow, 0.03)
+        assert out.shape == (2, 3) and out.dtype == np.float32
+        np.testing.assert_allclose(out, [[0.5, 2.0, 2.0], [2.0, 2.0, 0.0]], atol=1e-6)
 
     def test_no_allowance_leaves_the_distance(self):
         distance = np.array([0.2, 3.0])
         x1 = np.zeros((2, 2))
-        np.testing.assert_array_equal(beyond_allowance(distance, x1, x1 + 50.0, 0.0), distance.astype(np.float32))
+        np.testing.assert_array_equal(beyond_allowance(distance, x1 + 50.0, 0.0), distance.astype(np.float32))
 
     def test_pair_evidence_takes_it_off_every_track_under_f(self):
         tracks, _ = street()

@@ -702,7 +702,7 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
         # F is degenerate: no translation to take a sign from.
         return PairEvidence(np.sqrt(h_squared).astype(np.float32))
     # cv2's F satisfies x2^T F x1 = 0, the convention of geometry.sampson_distance(F, x1, x2).
-    distance = beyond_allowance(np.sqrt(f_squared), x1, x2, config.epipole_allowance)
+    distance = beyond_allowance(np.sqrt(f_squared), x2 - x1, config.epipole_allowance)
     if K is None:
         return PairEvidence(distance)
     limit = config.max_rotation_deg if guarded else np.inf
@@ -729,12 +729,14 @@ def decided_ratios(x1: np.ndarray, parallax: Parallax, ground: np.ndarray, confi
     return np.where(floor >= config.ground_ratio_noise * noise, ground, np.nan).astype(np.float32)
 
 
-def beyond_allowance(distance: np.ndarray, x1: np.ndarray, x2: np.ndarray, allowance: float) -> np.ndarray:
-    """(N,) float32 epipolar ``distance`` (N,) of the correspondences x1 -> x2 ((N, 2) each) less ``allowance``
-    times each one's displacement |x2 - x1|, at least 0 (``TrackMotionConfig.epipole_allowance``)."""
+def beyond_allowance(distance: np.ndarray, displacement: np.ndarray, allowance: float) -> np.ndarray:
+    """(...) float32 epipolar ``distance`` (any shape) of correspondences less ``allowance`` times the length of
+    each one's ``displacement`` (that shape plus a last axis of 2: x2 - x1, or a dense flow), at least 0
+    (``TrackMotionConfig.epipole_allowance``; the front-end's ``dense_allowance`` for a dense flow)."""
     if allowance <= 0:
         return np.asarray(distance, dtype=np.float32)
-    return np.maximum(distance - allowance * np.linalg.norm(x2 - x1, axis=1), 0.0).astype(np.float32)
+    return np.maximum(distance - allowance * np.hypot(displacement[..., 0], displacement[..., 1]),
+                      0.0).astype(np.float32)
 
 
 def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
