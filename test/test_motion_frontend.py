@@ -566,7 +566,7 @@ class TestDenseCorroboration:
         return np.stack([-radial[..., 1], radial[..., 0]], axis=-1)
 
     @classmethod
-    def _refit(cls, corroboration: float, dense_offset: float = 1.5, floor: float = 0.25):
+    def _refit(cls, corroboration: float, dense_offset: float = 1.5, floor: float = 0.25, allowance: float = 0.0):
         h, w = cls.SIZE
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
         grid = np.stack([xx, yy], axis=-1)
@@ -584,10 +584,10 @@ class TestDenseCorroboration:
         before[drift] += 2.0 * cls._across(now[drift])  # KLT drifting at a near edge: the dense flow does not
         before[moving] += 2.5 * cls._across(now[moving])
         ids = np.arange(len(now))
-        base = MotionFrontEndConfig(dense_width=w, corroboration_floor=floor)
-        # No epipole allowance and no ground tests (this flow has no ground: points below the epipole lie at any
-        # depth): the drift is also a small share of these near tracks' displacement, and this class is about the
-        # corroboration alone.
+        base = MotionFrontEndConfig(dense_width=w, corroboration_floor=floor, dense_allowance=allowance)
+        # No epipole or dense allowance (but in the allowance's own test) and no ground tests (this flow has no
+        # ground: points below the epipole lie at any depth): the drift is also a small share of these near tracks'
+        # displacement, and this class is about the corroboration alone.
         config = replace(base, track_motion=replace(base.track_motion, ground_ratio=0.0, footing_px=np.inf,
                                                     shortfall_px=np.inf, shortfall_strong_px=0.0,
                                                     corroboration=corroboration, epipole_allowance=0.0))
@@ -610,6 +610,14 @@ class TestDenseCorroboration:
         assert mover.mean() > 0.9 and not drifting.any()
         _, _, mover = self._refit(TrackMotionConfig().corroboration, dense_offset=0.4, floor=np.inf)
         assert not mover.any()
+
+    def test_the_dense_residual_counts_only_beyond_the_dense_allowance(self):
+        """The mover's 0.4 px a frame across its 7-8 px of flow is within 0.06 of it: as the dense mask would not
+        see it, it corroborates nothing (the floor or not), and its tracks are doubted."""
+        _, _, mover = self._refit(TrackMotionConfig().corroboration, dense_offset=0.4, allowance=0.06)
+        assert not mover.any()
+        _, _, mover = self._refit(TrackMotionConfig().corroboration, dense_offset=1.5, allowance=0.06)
+        assert mover.mean() > 0.9
 
     def test_without_it_the_drifting_tracks_are_flagged(self):
         static, drifting, mover = self._refit(0.0)

@@ -95,7 +95,8 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
     """KITTI 07's frames 36-55 pass close by parked cars whose windows, reflections and glints moved a lot and a
     little off their epipolar lines: 2.99 % of the pixels of frames 40-55 were masked before the epipole
     allowance and the texture gate of the dense footing test (2026-12-04), 1.53 % with them, 1.21 % with the dense
-    flow's own allowance (``dense_allowance``, 2026-12-05)."""
+    flow's own allowance (``dense_allowance``, 2026-12-05), 1.09 % with the corroborating dense residual counted
+    beyond it too."""
     import cv2
     from dataclasses import replace
 
@@ -109,7 +110,7 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
         for i in range(36, 56):
             frame = cv2.imread(str(sequence.images[i]), cv2.IMREAD_GRAYSCALE)
             flagged.append((pipeline.process(frame, sequence.stamps_ns[i], None, sequence.K).masks.dynamic > 0).mean())
-    assert np.mean(flagged[4:]) < 0.014
+    assert np.mean(flagged[4:]) < 0.012
 
 
 def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path, capsys):

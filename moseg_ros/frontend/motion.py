@@ -100,7 +100,8 @@ class MotionFrontEndConfig:
     # beyond ``TrackMotionConfig.epipole_allowance`` of its displacement: the frame pair's F is off by a small angle,
     # and near static surfaces that flow fast (a parked car or a wall at the image's side) came out moving. On
     # KITTI 07's 134 static frames it took the masked share from 0.79 to 0.49 %, at 0.3 points of KT3DMoSeg's
-    # recall (docs/experiments.md). 0: off.
+    # recall (docs/experiments.md). The residual that corroborates a track (``corroboration_reach``) counts the
+    # same way. 0: off.
     dense_allowance: float = 0.06
     # The dense residual that corroborates a track's epipolar distance (``TrackMotionConfig.corroboration``) is
     # the largest within this many pixels of it at the dense width; where it reaches ``corroboration_floor`` of
@@ -436,7 +437,7 @@ class MotionFrontEnd:
                 with stages("dense_flow"):
                     forward = self._refit_flow(observation.earlier, observation.gray)
             with stages("dense_fit"):
-                evidence = epipolar_residual(backward, forward, self.config.dense_baseline)
+                evidence = self._counted(epipolar_residual(backward, forward, self.config.dense_baseline), backward)
         with stages("fit"):
             flagged = self._flagged(observation, evidence)
         dense = None
@@ -577,8 +578,8 @@ class MotionFrontEnd:
 
     def _dense_near(self, ids: np.ndarray, observation: Observation,
                     evidence: EpipolarResidual | None) -> np.ndarray | None:
-        """(len(ids),) the dense residual near each track of sorted ``ids`` where it is now, in the units of the
-        track test's distances (tracking pixels over ``gap`` frames; infinite where it reaches
+        """(len(ids),) the dense residual (``_counted``) near each track of sorted ``ids`` where it is now, in
+        the units of the track test's distances (tracking pixels over ``gap`` frames; infinite where it reaches
         ``corroboration_floor`` of the dense threshold); NaN for tracks not seen now, None without dense
         evidence or with the corroboration off."""
         if (self.config.track_motion.corroboration <= 0 or evidence is None or observation.pair is None
@@ -654,15 +655,20 @@ class MotionFrontEnd:
         slow = np.hypot(flow[..., 0], flow[..., 1]) <= self.config.smooth_max_flow
         return (textured > 0) | (near & slow)
 
+    def _counted(self, evidence: EpipolarResidual, flow: np.ndarray) -> EpipolarResidual:
+        """``evidence`` whose residual counts only beyond ``dense_allowance`` of each pixel's ``flow`` (h, w, 2),
+        for the dense mask and the tracks' corroboration alike; a homography's transfer error stays whole: it has
+        no epipolar line to be off."""
+        if evidence.homography is not None or self.config.dense_allowance <= 0:
+            return evidence
+        return replace(evidence, residual=beyond_allowance(evidence.residual, flow, self.config.dense_allowance))
+
     def _dense_mask(self, observation: Observation, evidence: EpipolarResidual) -> np.ndarray:
         backward, _ = observation.flows
         gray = observation.gray
         if evidence.fundamental is None and evidence.homography is None:
             return np.zeros(gray.shape, dtype=bool)
-        residual = evidence.residual
-        if evidence.homography is None:  # a homography's transfer error has no epipolar line to be off
-            residual = beyond_allowance(residual, backward, self.config.dense_allowance)
-        moving = (residual > evidence.threshold) & evidence.valid
+        moving = (evidence.residual > evidence.threshold) & evidence.valid
         reliable = self._reliable(gray, backward) if self.config.min_texture > 0 else None
         if reliable is not None:
             moving &= reliable
