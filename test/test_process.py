@@ -96,7 +96,8 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
     little off their epipolar lines: 2.99 % of the pixels of frames 40-55 were masked before the epipole
     allowance and the texture gate of the dense footing test (2026-12-04), 1.53 % with them, 1.21 % with the dense
     flow's own allowance (``dense_allowance``, 2026-12-05), 1.09 % with the corroborating dense residual counted
-    beyond it too."""
+    beyond it too, 0.54 % since a track's footing needs something clearly under its object (``footing_clearance``:
+    the white van cut by the image's lower edge, frames 46-49)."""
     import cv2
     from dataclasses import replace
 
@@ -110,7 +111,7 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
         for i in range(36, 56):
             frame = cv2.imread(str(sequence.images[i]), cv2.IMREAD_GRAYSCALE)
             flagged.append((pipeline.process(frame, sequence.stamps_ns[i], None, sequence.K).masks.dynamic > 0).mean())
-    assert np.mean(flagged[4:]) < 0.012
+    assert np.mean(flagged[4:]) < 0.007
 
 
 def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path, capsys):

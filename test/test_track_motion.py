@@ -749,7 +749,10 @@ class TestFootingExcess:
         assert not (excess[~is_oncoming & ~is_parked] > limit).any()
         # Beside its edge the band sees the road behind the parked car: a few of its tracks, in one pair.
         assert np.mean(excess[is_parked] > limit) < 0.2
-        assert np.nanmedian(excess[is_oncoming]) > 3 * limit and np.isfinite(excess[is_oncoming]).mean() > 0.9
+        # The road under the oncoming car holds few tracks: those of its tracks whose column shows no road clearly
+        # below the car's lowest track (``footing_clearance``) are not decided.
+        decided = np.isfinite(excess[is_oncoming])
+        assert decided.mean() > 0.3 and (excess[is_oncoming][decided] > 3 * limit).all()
 
     def test_no_excess_without_a_forward_motion(self):
         tracks, _, _ = road(sideways=2.0)
@@ -764,6 +767,19 @@ class TestFootingExcess:
         excess = footing_excess(tracks[:, 0], parallax, ground)
         above_car = is_road & (tracks[:, 0, 1] < tracks[is_car, 0, 1].max())
         assert above_car.sum() > 20 and not (excess[above_car] > TrackMotionConfig().footing_px).any()
+
+    def test_a_parked_van_cut_by_the_image_edge_has_no_footing_beside_its_edge(self):
+        """The road seen beside the van's edge lies behind it, and its own ground contact is below the image:
+        with no clearance the edge's tracks look nearer than that road; with it they are not decided."""
+        tracks, is_van = cut_van()
+        x1 = tracks[:, 0]
+        parallax = _parallax(x1, tracks[:, 2])
+        ground = ground_parallax_ratio(x1, parallax)
+        limit = TrackMotionConfig().footing_px
+        unguarded = footing_excess(x1, parallax, ground, TrackMotionConfig(footing_clearance=0.0))
+        excess = footing_excess(x1, parallax, ground)
+        assert (unguarded[is_van] > limit).sum() >= 2
+        assert not (excess[is_van] > limit).any() and not (excess[~is_van] > limit).any()
 
     def test_the_column_matches_a_brute_force_one(self):
         rng = np.random.default_rng(5)
@@ -800,6 +816,20 @@ def _in_front_of(points: np.ndarray, near: np.ndarray, margin_px: float = 2.0) -
     (left, top), (right, bottom) = box.min(axis=0) - margin_px, box.max(axis=0) + margin_px
     return ((seen[:, 0] > left) & (seen[:, 0] < right) & (seen[:, 1] > top) & (seen[:, 1] < bottom)
             & (points[:, 2] > near[:, 2].min()))
+
+
+def cut_van(seed: int = 0, bottom: float = 200.0):
+    """A parked van (its side 8 m ahead on the left, 1.5 m wide, up to 2.5 m tall) whose lower part, like the road
+    under it, is below the image's edge (row ``bottom``), over a road seen beside its edge and between walls.
+    Returns the tracks (N, 3, 2) in view over three frames and is_van (N,)."""
+    rng = np.random.default_rng(seed)
+    road = np.column_stack([rng.uniform(-6, 6, 1500), np.full(1500, 1.5), rng.uniform(4, 40, 1500)])
+    van = np.column_stack([rng.uniform(-3.5, -2.0, 60), rng.uniform(-1.0, 1.5, 60), np.full(60, 8.0)])
+    static = np.vstack([road, walls(rng)])
+    static = static[~_in_front_of(static, van)]
+    tracks = _forward_drive(np.vstack([static, van]), np.zeros((0, 3)), np.zeros(3), 3, seed)
+    in_view = ((tracks[..., 1] < bottom) & (tracks[..., 0] > 0)).all(axis=1)
+    return tracks[in_view], np.r_[np.zeros(len(static), bool), np.ones(len(van), bool)][in_view]
 
 
 def sparse_road_oncoming(seed: int = 0):
@@ -1020,7 +1050,8 @@ def test_the_oncoming_car_is_caught_by_its_footing_and_missed_by_every_other_tes
     residuals, signed, ground, footing, shortfall = (np.stack(table, axis=1) for table in zip(*evidence))
     assert not moving_tracks(residuals, signed=signed, ground=ground, shortfall=shortfall)[is_oncoming].any()
     flagged = moving_tracks(residuals, signed=signed, ground=ground, footing=footing, shortfall=shortfall)
-    assert flagged[is_oncoming].mean() > 0.9
+    # Not all: under the car's sparse road some columns show nothing clearly below its lowest track in any pair.
+    assert flagged[is_oncoming].mean() > 0.6
     # Beside the parked car's near edge its column band sees the road behind it, and the car's own road-level
     # tracks are no longer its base: a track or two right at that edge may be flagged, never its body.
     edge = tracks[is_parked, 0, 0].min() + 2 * TrackMotionConfig().footing_band * np.ptp(tracks[:, 0, 0])

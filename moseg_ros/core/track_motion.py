@@ -69,7 +69,10 @@ no higher than its own lowest track (the lowest one under it at its inverse dept
 ``footing_same_depth``: beside a thin pole's trunk the road behind the pole is visible, and it is no
 footing), so the fitted ground's inverse depth at the lower of those rows bounds it. A road track is never the
 object's own: an oncoming car seems as near as the road some way in front of it, and that road, seen under the
-car's columns, would otherwise pass for the car's lowest part.
+car's columns, would otherwise pass for the car's lowest part. And the footing is decided only where the column
+holds a candidate more than ``footing_clearance`` of the tracks' vertical extent below the object's lowest track:
+where nothing lies clearly under the object (a near parked van cut by the image's lower edge), what the column
+holds lies beside its edge (the kerb behind it), not under it.
 
 The dense flow gives the footing test what the tracks lack while an oncoming car is far: ``nearer_than_road``
 runs it on every pixel of a flow's ``dense_parallax`` (the cheirality vote ``behind_infinity`` reads too), with the
@@ -154,6 +157,11 @@ class TrackMotionConfig:
     footing_support: int = 3
     footing_road_tol: float = 0.3
     footing_same_depth: float = 0.25
+    # A track's footing is decided only where its column holds a footing candidate more than this share of the
+    # tracks' vertical extent below its object's lowest track: a near parked van cut by the image's lower edge
+    # stands out of view, and the column's tracks beside its edge (the kerb behind it) are no footing. On KITTI 07
+    # the van's edge was 1.8-3.7 % of frames 46-49; 0.08 is 30 rows at 375 (docs/experiments.md).
+    footing_clearance: float = 0.08
     # A fitted F's epipolar lines are off by a small angle, so a static track's distance from its line grows
     # with how far it moved: its distance counts only beyond this share of its displacement (radians of line
     # direction; 0.03 is 1.7 degrees). On KITTI 07 the tracks flagged on near parked cars' windows and glints
@@ -577,15 +585,19 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
         slope = None
     elif slope is None:
         slope = ground_slope(x1, parallax, config)
+    road = (under & (np.abs(ground[index] - 1.0) <= config.footing_road_tol) if slope is not None
+            else np.zeros_like(under))
+    base = _footing_base(x1[tested, 1], rows, under & ~road, depth[index], depth[tested], config.footing_same_depth)
     if slope is not None:
-        road = under & (np.abs(ground[index] - 1.0) <= config.footing_road_tol)
-        base = _footing_base(x1[tested, 1], rows, under & ~road, depth[index], depth[tested], config.footing_same_depth)
         first_road = np.where(road, rows, np.inf).min(axis=1)
         found = np.isfinite(first_road)
         stands = np.maximum(first_road[found], base[found])
         support[found] = np.minimum(support[found], slope * (stands - parallax.epipole_row))
     ahead = support * parallax.gain[tested]  # the parallax the footing's depth gives at the track
-    decided = np.isfinite(ahead) & (ahead >= config.ground_min_px)
+    # Where nothing of the column lies clearly below the object's lowest track, its ground contact is out of view
+    # (a near parked van cut by the image's edge), and what the column holds lies beside the object, not under it.
+    seen = (under & (rows > base[:, None] + config.footing_clearance * float(np.ptp(x1[:, 1])))).any(axis=1)
+    decided = np.isfinite(ahead) & (ahead >= config.ground_min_px) & seen
     excess[tested[decided]] = (parallax.signed[tested] - (1.0 + config.footing_margin) * ahead)[decided]
     return excess
 
