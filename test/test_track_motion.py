@@ -819,7 +819,7 @@ def _in_front_of(points: np.ndarray, near: np.ndarray, margin_px: float = 2.0) -
 
 
 def cut_van(seed: int = 0, bottom: float = 200.0):
-    """A parked van (its side 8 m ahead on the left, 1.5 m wide, up to 2.5 m tall) whose lower part, like the road
+    """A parked van (its rear face 8 m ahead on the left, 1.5 m wide, 2.5 m tall) whose lower part, like the road
     under it, is below the image's edge (row ``bottom``), over a road seen beside its edge and between walls.
     Returns the tracks (N, 3, 2) in view over three frames and is_van (N,)."""
     rng = np.random.default_rng(seed)
