@@ -92,12 +92,14 @@ def test_real_kitti_street_is_mostly_left_usable(tmp_path):
 
 
 def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
-    """KITTI 07's frames 36-55 pass close by parked cars whose windows, reflections and glints moved a lot and a
+    """KITTI 07's frames 36-60 pass close by parked cars whose windows, reflections and glints moved a lot and a
     little off their epipolar lines: 2.99 % of the pixels of frames 40-55 were masked before the epipole
     allowance and the texture gate of the dense footing test (2026-12-04), 1.53 % with them, 1.21 % with the dense
     flow's own allowance (``dense_allowance``, 2026-12-05), 1.09 % with the corroborating dense residual counted
     beyond it too, 0.54 % since a track's footing needs something clearly under its object (``footing_clearance``:
-    the white van cut by the image's lower edge, frames 46-49)."""
+    the white van cut by the image's lower edge, frames 46-49). Over frames 40-60: 0.65 % with that, 0.52 % since a
+    pixel's dense footing needs road clearly under it (``dense_footing_clearance``: frame 59's number plate on a
+    parked car cut by the image's lower edge)."""
     import cv2
     from dataclasses import replace
 
@@ -105,13 +107,13 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
     from moseg_ros.io.kitti import find_sequence
     from moseg_ros.pipeline import Pipeline, PipelineConfig
 
-    sequence = find_sequence(shared_data("kitti_odom07"), limit=56)
+    sequence = find_sequence(shared_data("kitti_odom07"), limit=61)
     flagged = []
     with Pipeline(replace(PipelineConfig(), refit="inline")) as pipeline:
-        for i in range(36, 56):
+        for i in range(36, 61):
             frame = cv2.imread(str(sequence.images[i]), cv2.IMREAD_GRAYSCALE)
             flagged.append((pipeline.process(frame, sequence.stamps_ns[i], None, sequence.K).masks.dynamic > 0).mean())
-    assert np.mean(flagged[4:]) < 0.007
+    assert np.mean(flagged[4:]) < 0.006
 
 
 def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path, capsys):

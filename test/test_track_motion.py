@@ -19,6 +19,7 @@ from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_belo
                                          ground_slope, guessed_camera_matrix, may_be_planar, moving_tracks,
                                          nearer_than_road, pair_evidence, pair_residual, pair_residuals, row_medians,
                                          signed_parallax, standing_rows, standing_shortfall)
+from moseg_ros.frontend.motion import MotionFrontEndConfig
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 
@@ -647,6 +648,31 @@ class TestBehindInfinity:
         assert dense_parallax(to_previous, valid, F, K_flow, never, max_rotation_deg=1.5) is not None
 
 
+def cut_car_street_flow(height: int = 120, width: int = 320):
+    """The dense flow (current -> previous frame) of a camera 1.5 m above a flat road that drove 1 m forward, past
+    the rear face of a car parked 5.75 m ahead on the right (x 1-3.5 m) and cut by the image's lower edge, with
+    a number plate 1.15 m nearer on it, and towards a car 16 m ahead in the left lane that drove 1 m towards it.
+    Returns to_previous (H, W, 2), is_parked (H, W) (face and plate), is_oncoming (H, W), K."""
+    K_flow = np.array([[300.0, 0.0, width / 2], [0.0, 300.0, height / 2], [0.0, 0.0, 1.0]])
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.stack([xs, ys, np.ones_like(xs)], axis=-1) @ np.linalg.inv(K_flow).T
+    with np.errstate(divide="ignore"):
+        depth = np.minimum(np.where(rays[..., 1] > 0, 1.5 / rays[..., 1], np.inf), 200.0)
+    faces = []
+    for (x0, x1), (y0, y1), z in (((1.0, 3.5), (0.0, 1.5), 5.75), ((1.2, 2.0), (0.6, 0.9), 4.6),
+                                  ((-3.5, -1.7), (0.0, 1.5), 16.0)):
+        x, y = rays[..., 0] * z, rays[..., 1] * z
+        face = (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1) & (z < depth)
+        depth[face] = z
+        faces.append(face)
+    world = rays * depth[..., None]
+    world[..., 2] += 1.0
+    world[faces[2], 2] += 1.0
+    seen = world @ K_flow.T
+    to_previous = (seen[..., :2] / seen[..., 2:] - np.stack([xs, ys], axis=-1)).astype(np.float32)
+    return to_previous, faces[0] | faces[1], faces[2], K_flow
+
+
 class TestNearerThanRoad:
     def _near(self, to_previous, K_flow, valid=None, config=TrackMotionConfig()):
         valid = np.ones(to_previous.shape[:2], bool) if valid is None else valid
@@ -692,6 +718,17 @@ class TestNearerThanRoad:
         assert np.array_equal(default, nearer_than_road(parallax, valid, excess_px=TrackMotionConfig().footing_px))
         assert nearer_than_road(parallax, valid, excess_px=0.25)[is_oncoming].sum() >= default[is_oncoming].sum()
         assert not nearer_than_road(parallax, valid, excess_px=50.0).any()  # more than the car's whole parallax
+
+    def test_a_near_car_cut_by_the_image_edge_is_not_nearer_than_its_own_bumper(self):
+        to_previous, is_parked, is_oncoming, K_flow = cut_car_street_flow()
+        valid = np.ones(is_parked.shape, bool)
+        parallax = dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow)
+        # The face's last rows above the image's edge pass for road, and the plate reads nearer than them.
+        unguarded = nearer_than_road(parallax, valid)
+        assert unguarded[is_parked].sum() > 50 and unguarded[is_oncoming].mean() > 0.9
+        near = nearer_than_road(parallax, valid, clearance=MotionFrontEndConfig().dense_footing_clearance)
+        assert not near[is_parked].any() and near[is_oncoming].mean() > 0.9
+        assert not near[~is_oncoming].any()
 
     def test_none_when_the_camera_does_not_drive_along_its_axis(self):
         to_previous, _, _, K_flow = oncoming_street_flow(lateral=3.0)  # 3 m sideways to 1 m forward

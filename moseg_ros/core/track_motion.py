@@ -389,7 +389,8 @@ def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMot
 
 
 def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
-                     excess_px: float | None = None, sample_step: int = 4) -> np.ndarray | None:
+                     excess_px: float | None = None, clearance: float = 0.0,
+                     sample_step: int = 4) -> np.ndarray | None:
     """(H, W) bool: reliable pixels below the epipole that look nearer than the road where they stand, the footing
     test (``footing_excess``) for every pixel of a dense flow.
 
@@ -408,6 +409,7 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
         valid: (H, W) bool pixels whose flow is reliable.
         config: the footing and ground settings.
         excess_px: the least excess in the flow's own pixels (default ``footing_px``, which is in the tracks').
+        clearance: a footing counts only where its column holds road more than this share of the height below it.
         sample_step: the stride of the pixels the road's slope is fitted to.
 
     Returns:
@@ -436,7 +438,11 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
     index = np.arange(h, dtype=np.min_scalar_type(h))[:, None]
     first_road = np.minimum.accumulate(np.where(road, index, index.dtype.type(h))[::-1], axis=0)[::-1]
     footing_px = slope * np.maximum(first_road.astype(np.float32) - parallax.epipole_row, 0.0) * parallax.gain
-    decided = valid & below & (first_road < h) & (footing_px >= config.ground_min_px)
+    # The tolerance lets an object's own lowest part pass for road where the road under it is out of view (a parked
+    # car cut by the image's lower edge): a footing counts only where the road goes on clearly below it.
+    further = first_road.astype(np.intp) + int(np.ceil(clearance * h))
+    confirmed = (further < h) & (np.take_along_axis(first_road, np.minimum(further, h - 1), axis=0) < h)
+    decided = valid & below & confirmed & (footing_px >= config.ground_min_px)
     excess_px = config.footing_px if excess_px is None else excess_px
     return decided & (parallax.signed > (1.0 + config.footing_margin) * footing_px + excess_px)
 
