@@ -468,12 +468,11 @@ class TestDecidedRatios:
         config = TrackMotionConfig()
         ground = ground_parallax_ratio(x1, parallax, config)
         floor = ground_floor(x1, parallax, config)
-        decided = decided_ratios(x1, parallax, ground, config, ground_slope(x1, parallax, config), noise=0.5)
+        decided = decided_ratios(ground, floor, config, noise=0.5)
         assert decided.shape == (640,) and decided.dtype == np.float32
         np.testing.assert_array_equal(np.isfinite(decided), floor >= config.ground_ratio_noise * 0.5)
         np.testing.assert_array_equal(decided[np.isfinite(decided)], ground[np.isfinite(decided)])
-        assert np.isnan(decided_ratios(x1, parallax, ground, config, ground_slope(x1, parallax, config),
-                                       noise=np.inf)).all()
+        assert np.isnan(decided_ratios(ground, floor, config, noise=np.inf)).all()
 
     def test_the_noisy_far_end_is_not_flagged_and_the_followed_car_still_is(self):
         tracks, is_car, is_far = road_with_far_end()

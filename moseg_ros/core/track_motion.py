@@ -731,19 +731,18 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     signed = guarded_signs(x1, parallax, config.behind_share) if guarded else parallax.signed
     if slope is None:
         return PairEvidence(distance, signed, None, footing_excess(x1, parallax, None, config, slope))
-    ground = ground_parallax_ratio(x1, parallax, config, slope)
+    floor = ground_floor(x1, parallax, config, slope)  # once for the ratios and which of them are decided
+    ground = (parallax.signed / floor).astype(np.float32)  # as ground_parallax_ratio gives them
     columns = footing_columns(x1, parallax, ground, config)  # once for the footing and shortfall tests
-    return PairEvidence(distance, signed, decided_ratios(x1, parallax, ground, config, slope, noise),
+    return PairEvidence(distance, signed, decided_ratios(ground, floor, config, noise),
                         footing_excess(x1, parallax, ground, config, slope, columns),
                         standing_shortfall(x1, parallax, ground, config, slope, columns))
 
 
-def decided_ratios(x1: np.ndarray, parallax: Parallax, ground: np.ndarray, config: TrackMotionConfig,
-                   slope: float, noise: float) -> np.ndarray:
+def decided_ratios(ground: np.ndarray, floor: np.ndarray, config: TrackMotionConfig, noise: float) -> np.ndarray:
     """(N,) float32 the ``ground`` ratios (``ground_parallax_ratio``) that the ratio test decides on: NaN where the
-    floor's parallax is below ``ground_ratio_noise`` times the pair's ``noise`` (pixels; the footing and shortfall
-    tests keep every ratio)."""
-    floor = ground_floor(x1, parallax, config, slope)
+    ``floor`` (``ground_floor``, pixels) is below ``ground_ratio_noise`` times the pair's ``noise`` (pixels; the
+    footing and shortfall tests keep every ratio)."""
     return np.where(floor >= config.ground_ratio_noise * noise, ground, np.nan).astype(np.float32)
 
 
