@@ -49,16 +49,17 @@ def test_scores_real_frames_at_labelled_points(tmp_path, capsys):
 
 def test_live_scores_what_the_node_publishes_at_a_camera_rate(tmp_path):
     """--live HZ: the refit on its worker, frames at HZ. With the default ``refit_wait_ms`` (-1) a frame waits for
-    its own refit while the camera leaves time, and at 5 Hz every frame scores as offline, exactly; frames that
+    its own refit while the camera leaves time, and at 2 Hz every frame scores as offline, exactly (a slow rate: the
+    auto wait takes no refit slower than the time left, and a loaded machine once made 5 Hz too fast); frames that
     never wait apply decisions a frame old and lose recall on Seq005_Clip02 (measured 2026-12-04: 89.0 % offline,
     85.4 % a frame late)."""
     root = _subset(tmp_path / "kt", ["Seq005_Clip02"])
     runs = {}
-    for name, extra in (("offline", []), ("live", ["--live", "5"]),
+    for name, extra in (("offline", []), ("live", ["--live", "2"]),
                         ("never_waiting", ["--live", "10", "--set", "refit_wait_ms=0"])):
         assert moseg(["eval", "kt3dmoseg-masks", str(root), "--json", str(tmp_path / f"{name}.json"), *extra]) == 0
         runs[name] = json.loads((tmp_path / f"{name}.json").read_text())
-    assert runs["live"]["live_hz"] == 5.0 and runs["offline"]["live_hz"] == 0.0
+    assert runs["live"]["live_hz"] == 2.0 and runs["offline"]["live_hz"] == 0.0
     assert runs["live"]["recall"] == runs["offline"]["recall"]
     assert runs["live"]["static_flagged"] == runs["offline"]["static_flagged"]
     assert runs["never_waiting"]["recall"] < runs["offline"]["recall"]
