@@ -176,10 +176,11 @@ class TestCatchUp:
         with_own = self._pairs(1, catch_up_pairs)[0]  # refitting every frame, nothing is skipped
         assert len(with_own) == MotionFrontEndConfig().window_length - MotionFrontEndConfig().track_motion.gap
 
-    def test_an_observation_without_its_window_fits_only_its_own_pair(self):
+    def test_an_observation_whose_window_holds_only_its_pair_fits_only_that_pair(self):
         front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False, catch_up_pairs=8))
         observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
-        front_end.refit(replace(observations[-1], window=()))
+        last = observations[-1]
+        front_end.refit(replace(last, window=last.window[-1 - last.gap:]))
         assert len(front_end._pairs) == 1
 
 
@@ -193,8 +194,7 @@ class TestDenseCheirality:
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         config = MotionFrontEndConfig(dense_width=is_car.shape[1],
                                       track_motion=TrackMotionConfig(behind_share=share))
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, forward), gray,
-                                  is_car.shape)
+        observation = Observation(1, K, (backward, forward), gray, is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_car
 
     def test_the_followed_body_is_in_the_dense_mask(self):
@@ -273,8 +273,7 @@ class TestDenseFooting:
         if smooth_car:
             gray[is_oncoming] = 90
         config = MotionFrontEndConfig(dense_width=is_parked.shape[1], dense_footing=dense_footing, **settings)
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, -backward), gray,
-                                  is_parked.shape)
+        observation = Observation(1, K, (backward, -backward), gray, is_parked.shape)
         return MotionFrontEnd(config).refit(observation).dense, is_parked, is_oncoming
 
     def test_the_oncoming_car_is_in_the_dense_mask_and_the_parked_one_is_not(self):
@@ -404,8 +403,7 @@ class TestDenseHysteresis:
             flow[moving, 1] += 3.0  # off the epipolar lines: the residual test flags these pixels
             if index == 2:
                 flow[75:85, 50:70, 1] += 3.0  # a part of the body only
-            observation = Observation(index, None, None, np.zeros(0, np.int64), K, (flow, -flow), gray,
-                                      body.shape, backward=((index, flow),))
+            observation = Observation(index, K, (flow, -flow), gray, body.shape, backward=((index, flow),))
             masks.append(front_end.refit(observation).dense)
         return masks, body, blob
 
@@ -433,8 +431,7 @@ class TestBorder:
         gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
         base = MotionFrontEndConfig(dense_width=w)
         config = replace(base, dense_baseline=replace(base.dense_baseline, border_fraction=border_fraction))
-        observation = Observation(1, None, None, np.zeros(0, np.int64), K, (backward, -backward), gray,
-                                  is_car.shape)
+        observation = Observation(1, K, (backward, -backward), gray, is_car.shape)
         return MotionFrontEnd(config).refit(observation).dense, near_border, is_car
 
     def test_the_default_leaves_the_band_out_and_keeps_the_mover(self):
@@ -466,8 +463,7 @@ class TestTextureReach:
             gray[region] = 128
             backward[region] = (0.0, -step)
         config = MotionFrontEndConfig(dense_width=w, dense_cheir_px=0.0, texture_reach=reach)
-        observation = Observation(1, None, None, np.zeros(0, np.int64), guessed_camera_matrix((h, w)),
-                                  (backward, -backward), gray, (h, w))
+        observation = Observation(1, guessed_camera_matrix((h, w)), (backward, -backward), gray, (h, w))
         return MotionFrontEnd(config).refit(observation).dense, body, blank
 
     def test_the_smooth_body_is_filled_from_its_edges(self):
@@ -514,9 +510,9 @@ def _refit_stream(points: np.ndarray, K: np.ndarray, long_pairs: bool) -> np.nda
     ids = np.arange(points.shape[1])
     flagged = np.zeros(0, np.int64)
     for t in range(2, len(points)):
-        long_pair = (ids, points[0], ids, points[t]) if long_pairs and t == len(points) - 1 else None
-        observation = Observation(t, (ids, points[t - 2], ids, points[t]), long_pair, ids, K, None,
-                                  np.zeros((240, 640), np.uint8), (240, 640), t if long_pair else 0)
+        first = 0 if long_pairs and t == len(points) - 1 else t - 2
+        window = tuple((ids, points[k]) for k in range(first, t + 1))
+        observation = Observation(t, K, None, np.zeros((240, 640), np.uint8), (240, 640), window)
         flagged = front_end.refit(observation).flagged
     return flagged
 
@@ -593,8 +589,9 @@ class TestDenseCorroboration:
                                                     corroboration=corroboration, epipole_allowance=0.0))
         K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
         gray = rng.integers(0, 255, cls.SIZE).astype(np.uint8)
-        observation = Observation(2, (ids, before.astype(np.float32), ids, now.astype(np.float32)), None, ids, K,
-                                  (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE)
+        window = tuple((ids, points.astype(np.float32)) for points in (before, (before + now) / 2, now))
+        observation = Observation(2, K, (backward.astype(np.float32), -backward.astype(np.float32)), gray, cls.SIZE,
+                                  window)
         flagged = np.isin(ids, MotionFrontEnd(config).refit(observation).flagged)
         return flagged[:len(static)], flagged[drift], flagged[moving]
 
@@ -637,7 +634,7 @@ class TestMeasurable:
         now = np.array([[60.0, 60.0], [100.0, 60.0], [220.0, 20.0], [239.0, 39.0]], dtype=np.float32)
         ids = np.arange(4)
         K = np.array([[300.0, 0, 160], [0, 300, 60], [0, 0, 1]])
-        observation = Observation(2, (ids, now, ids, now), None, ids, K, None, gray, (h, w))
+        observation = Observation(2, K, None, gray, (h, w), ((ids, now),) * 3)
         config = MotionFrontEndConfig(dense_width=w, aperture_share=share)
         among = np.array([True, True, True, False, True, True])
         return MotionFrontEnd(config)._measurable(np.arange(6), observation, among)

@@ -286,35 +286,50 @@ class Observation:
 
     Attributes:
         index: the frame's number since the last reset.
-        pair: (ids, points) of the frames ``gap`` back and now, or None before there are two.
-        long_pair: the same for the window's first frame and now, or None until the window holds more than
-            ``gap`` + 1 frames.
-        alive: ids of the tracks living now.
         camera_matrix: (3, 3) K at the tracking size (camera_info's, or guessed without it).
         flows: dense (backward now -> then, forward then -> now) flows at the dense size, or None; the frame
             path computes only the backward one (forward None), the refit the forward one from ``earlier``.
         gray: the frame at the dense size (for the texture gate).
         tracking_shape: (H, W) of the frame as tracked (``camera_matrix``'s size).
-        long_span: frames between the long pair's two frames (0 without one).
+        window: (ids, points) of the window's frames, oldest first and this frame last, so that a refit that
+            skipped frames fits their track pairs too (``MotionFrontEnd.refit``); empty: no tracks yet.
+        gap: frames between the two frames of a short track pair (``TrackMotionConfig.gap``).
         backward: (frame, backward dense flow to the frame before) of the last frames, oldest first and this
             frame last, to carry an earlier refit's dense mask to this frame.
         earlier: the frame ``dense_gap`` back at the dense size (for the refit's forward flow), or None.
-        window: (ids, points) of the window's frames, oldest first and this frame last (the same arrays as the
-            pairs'), so that a refit that skipped frames fits their track pairs too (``MotionFrontEnd.refit``).
     """
 
     index: int
-    pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
-    long_pair: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None
-    alive: np.ndarray
     camera_matrix: np.ndarray
     flows: tuple[np.ndarray, np.ndarray] | None
     gray: np.ndarray
     tracking_shape: tuple[int, int]
-    long_span: int = 0
+    window: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+    gap: int = TrackMotionConfig().gap
     backward: tuple[tuple[int, np.ndarray], ...] = ()
     earlier: np.ndarray | None = None
-    window: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
+
+    @property
+    def alive(self) -> np.ndarray:
+        """Ids of the tracks living now."""
+        return self.window[-1][0] if self.window else np.zeros(0, dtype=np.int64)
+
+    @property
+    def pair(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """(ids, points, ids, points) of the frames ``gap`` back and now, or None before the window holds both."""
+        return (*self.window[-1 - self.gap], *self.window[-1]) if len(self.window) > self.gap else None
+
+    @property
+    def long_pair(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """The same for the window's first frame and now, or None until the window holds more than ``gap`` + 1
+        frames (near the focus of expansion the short pairs' parallax is below their floor, and the first frames
+        of a stream would wait for the window to fill)."""
+        return (*self.window[0], *self.window[-1]) if len(self.window) > self.gap + 1 else None
+
+    @property
+    def long_span(self) -> int:
+        """Frames between the long pair's two frames (0 without one)."""
+        return len(self.window) - 1 if self.long_pair is not None else 0
 
 
 @dataclass(frozen=True)
@@ -420,17 +435,10 @@ class MotionFrontEnd:
             self._points.update(gray, flows[0] if flows is not None and self.config.dense_gap == 1 else None,
                                 self._grays[-1])
             self._frames.append((self._points.ids.copy(), self._points.points.copy()))
-        gap = self.config.track_motion.gap
-        pair = (*self._frames[-1 - gap], *self._frames[-1]) if len(self._frames) > gap else None
-        # The window's longest pair, as soon as it is longer than the short ones: near the focus of expansion
-        # the short pairs' parallax is below their floor, and the first frames of a stream would wait for the
-        # window to fill.
-        long_pair = (*self._frames[0], *self._frames[-1]) if len(self._frames) > gap + 1 else None
         K = guessed_camera_matrix(gray.shape) if camera_matrix is None else camera_matrix
         self._tracking_shape = gray.shape
-        return Observation(self._index, pair, long_pair, self._points.ids.copy(), K, flows,
-                           self._grays[-1], gray.shape, len(self._frames) - 1 if long_pair is not None else 0,
-                           tuple(self._backward), earlier, tuple(self._frames))
+        return Observation(self._index, K, flows, self._grays[-1], gray.shape, tuple(self._frames),
+                           self.config.track_motion.gap, tuple(self._backward), earlier)
 
     def refit(self, observation: Observation) -> Refit:
         """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
