@@ -143,6 +143,32 @@ class TestMotionFrontEnd:
         assert not labels.any() and len(front_end.moving_track_points) == 0
 
 
+class TestStickyFlags:
+    """A track flagged in ``sticky_windows`` windows stays flagged for ``sticky_frames`` frames; a refit that comes
+    several frames after the one before counts its flags for the windows it stands in for."""
+
+    ALIVE = np.arange(6)
+
+    @staticmethod
+    def _sticky(refits: list[tuple[int, list[int]]]) -> list[list[int]]:
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
+        return [front_end._count_flags(np.array(flagged, dtype=np.int64), TestStickyFlags.ALIVE, index).tolist()
+                for index, flagged in refits]
+
+    def test_refitting_every_frame_a_flag_sticks_from_its_second_window(self):
+        assert self._sticky([(2, [1]), (3, []), (4, [1]), (5, [])]) == [[], [], [1], [1]]
+
+    def test_the_first_refit_of_a_stream_counts_one_window(self):
+        assert self._sticky([(5, [1]), (6, [])]) == [[], []]
+
+    def test_a_refit_three_frames_after_the_last_counts_as_two_windows(self):
+        assert self._sticky([(2, [3]), (5, [1]), (8, [])]) == [[], [1], [1]]
+
+    def test_a_sticky_flag_is_let_go_after_sticky_frames(self):
+        frames = MotionFrontEndConfig().sticky_frames
+        assert self._sticky([(2, []), (5, [1]), (5 + frames, []), (6 + frames, [])]) == [[], [1], [1], []]
+
+
 class TestCatchUp:
     """A refit that skips frames (a background worker slower than the camera) fits their track pairs too, up to
     ``catch_up_pairs`` of them, newest first."""

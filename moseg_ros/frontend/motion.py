@@ -16,7 +16,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   edge, the dense flow does not.
   A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
-  forever). Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
+  forever); a refit that comes several frames after the one before (a background refit slower than the camera)
+  counts its flags for each window it stands in for, so that a slow refit's flags stick as soon as every
+  frame's refits' would. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
   ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
   unflagged make up more than 1 - ``hull_purity`` of the tracks inside it; flagged tracks within
   ``track_border`` of the image's border are not drawn. The flow view then grows each hull
@@ -392,6 +394,7 @@ class MotionFrontEnd:
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
         self._flag_last = np.zeros(0, dtype=np.int64)
+        self._counted_through: int | None = None  # the frame of the last refit whose flags were counted
         # The last refit's own dense mask (before hysteresis) and its frame.
         self._last_dense: tuple[int, np.ndarray] | None = None
         # The newest frame whose track pair has been fitted (a refit that skipped frames fits theirs first).
@@ -625,8 +628,9 @@ class MotionFrontEnd:
         return measurable
 
     def _count_flags(self, flagged: np.ndarray, alive: np.ndarray, index: int) -> np.ndarray:
-        """Count one more window for each living flagged track (flagged at frame ``index``); returns the ids
-        flagged in enough windows whose last flag is at most ``sticky_frames`` old."""
+        """Count the windows since the last refit (one when every frame is refitted, and at the first) for each
+        living flagged track (flagged at frame ``index``); returns the ids flagged in enough windows whose last flag
+        is at most ``sticky_frames`` old."""
         keep = np.isin(self._flag_ids, alive)
         fresh = np.setdiff1d(flagged[np.isin(flagged, alive)], self._flag_ids)
         ids = np.concatenate([self._flag_ids[keep], fresh])
@@ -635,7 +639,11 @@ class MotionFrontEnd:
         order = np.argsort(ids)
         ids, counts, last = ids[order], counts[order], last[order]
         now = np.isin(ids, flagged)
-        counts[now] += 1
+        # Every frame's refit would have seen the skipped frames' windows, each mostly the same frames as this one's.
+        windows = 1 if self._counted_through is None else min(max(index - self._counted_through, 1),
+                                                                self.config.sticky_windows)
+        counts[now] += windows
+        self._counted_through = index
         last[now] = index
         self._flag_ids, self._flag_counts, self._flag_last = ids, counts, last
         return ids[(counts >= self.config.sticky_windows) & (index - last <= self.config.sticky_frames)]
