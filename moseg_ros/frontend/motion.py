@@ -18,8 +18,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever); a refit that comes several frames after the one before (a background refit slower than the camera)
   counts its flags for each window it stands in for, so that a slow refit's flags stick as soon as every
-  frame's refits' would. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each group of
-  ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
+  frame's refits' would. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
+  group of ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
   unflagged make up more than 1 - ``hull_purity`` of the tracks inside it; flagged tracks within
   ``track_border`` of the image's border are not drawn. The flow view then grows each hull
   over the pixels whose dense flow follows the group's own flow model, and trims what follows the
