@@ -78,7 +78,8 @@ class PipelineConfig:
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")
     refit: str = setting("auto", "moving_objects: where the motion models are refitted: background (a worker "
-                         "thread; a frame's mask never waits for a refit and applies the newest one done), inline "
+                         "thread; a frame's mask never waits for a refit and applies the newest one done, whose track "
+                         "test comes before its dense half), inline "
                          "(every frame waits for its own; deterministic), auto (background in the node, inline in "
                          "the offline tools)", choices=REFIT_MODES)
     refit_nice: int = setting(10, "moving_objects: niceness added to the background refit's thread, so on a busy "
@@ -143,7 +144,7 @@ class FrameResult:
         dynamic_ids: (D,) ids of the instances flagged as moving.
         seconds: processing time of this frame.
         reason: why, for reset and failed.
-        refit_age: frames between this frame and the refit whose decision it got (0: its own; None: none).
+        refit_age: frames between this frame and the refit whose track flags it got (0: its own; None: none).
         refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
         stages: seconds per stage of this frame: prepare (grey, instances resized), the method's own stages (for
             moving_objects: tracks, fit, flow, dense_flow, dense_fit, regions and method_other; "decision" for

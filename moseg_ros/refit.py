@@ -9,6 +9,8 @@ path: on a CPU too small for both (one core), frames keep their pace and the fit
 them, so they come less often instead of making every frame late. With ``duty`` below 1 the worker rests after
 each fit, so that it fits at most that share of the time: on two cores, a worker fitting back to back takes the
 second core that OpenCV's flow and tracking use on the frame path; resting gives it back, for older decisions.
+A fit may hand over a first result before it ends (``hand_over``, from the worker's thread: a fit's clear()
+waits for it to end, so a handed-over result is never one a clear() dropped).
 """
 
 from __future__ import annotations
@@ -65,6 +67,13 @@ class BackgroundRefit(Generic[Observation, Result]):
             if self._pending is not None:
                 self.replaced += 1
             self._pending = observation
+            self._cond.notify_all()
+
+    def hand_over(self, result: Result) -> None:
+        """From inside ``fit``: hand ``result`` over now, as the newest (the first half of a fit whose second half
+        takes long); the fit's return value replaces it when the fit ends."""
+        with self._cond:
+            self._result = result
             self._cond.notify_all()
 
     def latest(self) -> Result | None:

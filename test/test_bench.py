@@ -150,3 +150,22 @@ def test_pipeline_bench_repeats_on_the_same_frames(textured_bag, capsys, monkeyp
     assert result["ranges"]["ms_p95"][0] <= result["ms_p95"] <= result["ranges"]["ms_p95"][1]
     assert main(["bench", "pipeline", str(textured_bag), "--repeat", "0"]) == 2
     assert "--repeat >= 1" in capsys.readouterr().err
+
+
+def test_each_refit_counts_once_with_all_it_did():
+    """A refit's track half can reach a frame before its dense half: the refit of frame 2, applied by frame 2
+    with its track half (10 ms) and by frame 3 whole (50 ms), is one refit of 50 ms beside those of frames 1
+    (20 ms) and 3 (30 ms)."""
+    from types import SimpleNamespace
+
+    from moseg_ros.bench.pipeline import _refit_numbers
+
+    def frame(age, stages):
+        return SimpleNamespace(refit_age=age, refit_stages=stages)
+
+    results = [frame(None, {}), frame(0, {"fit": 0.02}), frame(0, {"fit": 0.01}),
+               frame(1, {"fit": 0.01, "dense_fit": 0.04}), frame(1, {"fit": 0.03}), frame(2, {})]
+    numbers = _refit_numbers(results, "background")
+    assert numbers["refits"] == 3
+    assert numbers["refit_ms_p50"] == pytest.approx(30.0)
+    assert numbers["refit_age_max"] == 2

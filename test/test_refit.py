@@ -63,6 +63,26 @@ class TestBackgroundRefit:
             worker.stop()
         return started[1] - ended[0]
 
+    def test_a_fit_hands_over_its_first_half_before_it_ends(self) -> None:
+        gate = threading.Event()
+        worker: BackgroundRefit[int, int]
+
+        def fit(value: int) -> int:
+            worker.hand_over(value)
+            gate.wait(5)
+            return value * 10
+
+        worker = BackgroundRefit(fit)
+        try:
+            worker.submit(4)
+            assert worker.wait_for(lambda result: result == 4, 5)
+            assert not worker.wait_idle(0.05)  # the fit still runs
+            gate.set()
+            assert worker.wait_for(lambda result: result == 40, 5)
+        finally:
+            gate.set()
+            worker.stop()
+
     def test_with_a_duty_below_one_the_worker_rests_after_each_fit(self) -> None:
         assert self._gap_between_two_fits(0.5) >= 0.25  # rests as long as the fit took
         assert self._gap_between_two_fits(1.0) < 0.25  # back to back
@@ -171,13 +191,15 @@ class TestBackgroundRefit:
 
 
 def _slow_refit(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
-    original = MotionFrontEnd.refit
+    """Each refit takes ``seconds`` more, in its first half (the track test, which a background worker hands over
+    before the dense half)."""
+    original = MotionFrontEnd.refit_tracks
 
     def slow(self, observation):
         time.sleep(seconds)
         return original(self, observation)
 
-    monkeypatch.setattr(MotionFrontEnd, "refit", slow)
+    monkeypatch.setattr(MotionFrontEnd, "refit_tracks", slow)
 
 
 class TestPipelineWithBackgroundRefit:
@@ -328,14 +350,14 @@ class TestPipelineWithBackgroundRefit:
         a refit took longer than that, no frame waits (the wait could not bring its own refit)."""
         from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
 
-        original = MotionFrontEnd.refit
+        original = MotionFrontEnd.refit_tracks
         sleeps = iter([0.0] * 3 + [0.5] * 20)
 
         def varying(self, observation):
             time.sleep(next(sleeps))
             return original(self, observation)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit", varying)
+        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", varying)
         results = []
         with Pipeline(PipelineConfig(), live=True) as pipeline:
             for i, frame in enumerate(textured_frames(16)):
@@ -345,8 +367,36 @@ class TestPipelineWithBackgroundRefit:
         assert waits[-4:] == [0.0] * 4, waits  # the first slow refit is done by then
         assert min(r.refit_age for r in results[-4:]) >= 1
 
+    def test_the_track_half_comes_before_the_dense_half(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """The dense half of each refit takes 0.3 s more, frames come at 10 Hz and never wait but the stream's
+        first: the track flags the frames apply are handed over at once (about 2 frames old on average, where
+        waiting for the whole refit would give about 4), and the first decisions still wait for the whole refit
+        (the second frame has no track pair: its mask is the dense half's alone, as inline)."""
+        original = MotionFrontEnd.refit_dense
+
+        def slow(self, observation, tracks):
+            time.sleep(0.3)
+            return original(self, observation, tracks)
+
+        frames = textured_frames(20)
+        with Pipeline(PipelineConfig(refit="inline")) as inline:
+            expected = [inline.process(frame, 1_000 + i * 100_000_000).masks.dynamic for i, frame in enumerate(frames)]
+        monkeypatch.setattr(MotionFrontEnd, "refit_dense", slow)
+        pipeline = Pipeline(PipelineConfig(refit="background", refit_wait_ms=0.0, refit_nice=0))
+        try:
+            results = []
+            for i, frame in enumerate(frames):
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
+                time.sleep(0.1)
+        finally:
+            pipeline.close()
+        assert expected[1].any() and np.array_equal(results[1].masks.dynamic, expected[1])
+        assert np.array_equal(results[2].masks.dynamic, expected[2])
+        ages = [r.refit_age for r in results[4:]]
+        assert 1 <= np.mean(ages) < 3, ages
+
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        original = MotionFrontEnd.refit
+        original = MotionFrontEnd.refit_tracks
         calls = {"n": 0}
 
         def flaky(self, observation):
@@ -355,7 +405,7 @@ class TestPipelineWithBackgroundRefit:
                 raise FloatingPointError("degenerate pair")
             return original(self, observation)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit", flaky)
+        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", flaky)
         pipeline = Pipeline(PipelineConfig(refit="background"))
         try:
             kinds = []
@@ -381,7 +431,7 @@ class TestPipelineWithBackgroundRefit:
             held.append(weakref.ref(arrays))
             raise FloatingPointError("degenerate pair")
 
-        monkeypatch.setattr(MotionFrontEnd, "refit", failing)
+        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", failing)
         pipeline = Pipeline(PipelineConfig(refit="background"))
         gc.disable()
         try:

@@ -13,7 +13,8 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   their parallax (``aperture_share``): on an edge running that way KLT's parallax comes out short.
   The epipolar distance counts only where the dense residual near the track corroborates it, or where it is
   far above its threshold (``TrackMotionConfig.corroboration``): KLT drifts where its window straddles a near
-  edge, the dense flow does not.
+  edge, the dense flow does not. The residual is the last refit's, read where the track was in its frame, so
+  that the track test needs nothing of the dense half of its own refit and can be handed over first.
   A track flagged in ``sticky_windows`` windows stays flagged until ``sticky_frames`` frames have passed
   without a flag (not while it lives: a track that slips off a mover onto the background would trail it
   forever); a refit that comes several frames after the one before (a background refit slower than the camera)
@@ -336,12 +337,16 @@ class Observation:
 
 @dataclass(frozen=True)
 class Refit:
-    """The motion evidence fitted on one observation: which tracks move, and the dense residual mask."""
+    """The motion evidence fitted on one observation: which tracks move (the track test of frame ``index``), and
+    the dense residual mask of frame ``dense_index`` (``index`` when both were fitted on it; an earlier frame's
+    when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet); ``stages``
+    times the work done for frame ``index``."""
 
     index: int
     flagged: np.ndarray
     dense: np.ndarray | None
     stages: dict[str, float]
+    dense_index: int
 
 
 class MotionFrontEnd:
@@ -399,6 +404,10 @@ class MotionFrontEnd:
         self._last_dense: tuple[int, np.ndarray] | None = None
         # The newest frame whose track pair has been fitted (a refit that skipped frames fits theirs first).
         self._fitted_through = -1
+        # The last dense residual (its frame, EpipolarResidual), which corroborates the next track tests, and the
+        # last dense mask handed over (its frame, the mask after hysteresis).
+        self._evidence: tuple[int, EpipolarResidual] | None = None
+        self._published_dense: tuple[int, np.ndarray] | None = None
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -444,8 +453,24 @@ class MotionFrontEnd:
                            self.config.track_motion.gap, tuple(self._backward), earlier)
 
     def refit(self, observation: Observation) -> Refit:
-        """The fits and tests of one observation: the newest pair's epipolar evidence, the window's track
-        test with sticky flags, and the dense residual mask; the Refit's ``stages`` times fit and dense_fit."""
+        """The fits and tests of one observation: ``refit_tracks`` then ``refit_dense``."""
+        return self.refit_dense(observation, self.refit_tracks(observation))
+
+    def refit_tracks(self, observation: Observation) -> Refit:
+        """The track test of one observation (the window's pairs with sticky flags), its epipolar distances
+        corroborated by the last dense residual; the Refit carries the last dense mask (``dense_index``: its
+        frame). The cheaper half of a refit, and the one whose age costs: a decision whose track flags are two
+        frames old loses what one whose dense mask is three frames old does not (docs/experiments.md), so a
+        background worker hands it over before it fits the dense half."""
+        stages = Stages()
+        with stages("fit"):
+            flagged = self._flagged(observation)
+        dense_index, dense = self._published_dense or (-1, None)
+        return Refit(observation.index, flagged, dense, stages.seconds, dense_index)
+
+    def refit_dense(self, observation: Observation, tracks: Refit) -> Refit:
+        """``tracks`` (this observation's ``refit_tracks``) with this observation's dense residual mask, whose
+        residual corroborates the next track tests; ``stages`` adds dense_flow and dense_fit."""
         stages = Stages()
         evidence = None
         if observation.flows is not None:
@@ -455,13 +480,13 @@ class MotionFrontEnd:
                     forward = self._refit_flow(observation.earlier, observation.gray)
             with stages("dense_fit"):
                 evidence = self._counted(epipolar_residual(backward, forward, self.config.dense_baseline), backward)
-        with stages("fit"):
-            flagged = self._flagged(observation, evidence)
+        self._evidence = None if evidence is None else (observation.index, evidence)
         dense = None
         if evidence is not None:
             with stages("dense_fit"):
                 dense = self._held(self._dense_mask(observation, evidence), observation)
-        return Refit(observation.index, flagged, dense, stages.seconds)
+        self._published_dense = None if dense is None else (observation.index, dense)
+        return replace(tracks, dense=dense, dense_index=observation.index, stages={**tracks.stages, **stages.seconds})
 
     def apply(self, refit: Refit | None) -> np.ndarray:
         """Moving regions of the current frame from ``refit`` (this frame's or an older one; None: nothing)."""
@@ -480,7 +505,7 @@ class MotionFrontEnd:
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
-                moving |= self._carried(refit.dense, refit.index)
+                moving |= self._carried(refit.dense, refit.dense_index)
             moving = self._remembered(moving, self._points.points[settled] * scale)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
@@ -537,10 +562,10 @@ class MotionFrontEnd:
             return dense
         return dense | touching(carried(last[1], last[0], observation.backward), dense)
 
-    def _flagged(self, observation: Observation, dense: EpipolarResidual | None = None) -> np.ndarray:
-        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); with the
-        frame's ``dense`` evidence, a track's epipolar distance counts only where the dense residual near it
-        corroborates it (``TrackMotionConfig.corroboration``)."""
+    def _flagged(self, observation: Observation) -> np.ndarray:
+        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); a track's
+        epipolar distance counts only where the last dense residual near it corroborates it
+        (``TrackMotionConfig.corroboration``, ``_dense_near``)."""
         self._catch_up(observation)
         newest = None
         if observation.pair is not None:
@@ -575,7 +600,7 @@ class MotionFrontEnd:
                     named[name][rows, -1] = values[known]
         short = short_of_ground(named["shortfall"])
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
-                                    dense=self._dense_near(ids, observation, dense),
+                                    dense=self._dense_near(ids, observation),
                                     measurable=self._measurable(ids, observation, short))]
         return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
 
@@ -593,19 +618,24 @@ class MotionFrontEnd:
                 self._pairs.append(fitted)
         self._fitted_through = observation.index
 
-    def _dense_near(self, ids: np.ndarray, observation: Observation,
-                    evidence: EpipolarResidual | None) -> np.ndarray | None:
-        """(len(ids),) the dense residual (``_counted``) near each track of sorted ``ids`` where it is now, in
-        the units of the track test's distances (tracking pixels over ``gap`` frames; infinite where it reaches
-        ``corroboration_floor`` of the dense threshold); NaN for tracks not seen now, None without dense
-        evidence or with the corroboration off."""
-        if (self.config.track_motion.corroboration <= 0 or evidence is None or observation.pair is None
-                or not np.isfinite(evidence.threshold)):
+    def _dense_near(self, ids: np.ndarray, observation: Observation) -> np.ndarray | None:
+        """(len(ids),) the last dense residual (``_counted``, of an earlier frame than ``observation``'s) near each
+        track of sorted ``ids`` where it was in that frame, in the units of the track test's distances (tracking
+        pixels over ``gap`` frames; infinite where it reaches ``corroboration_floor`` of the dense threshold);
+        NaN for tracks not seen then, None without dense evidence from a frame of the window or with the
+        corroboration off. A frame earlier than the one tested: KLT's drift at a near edge stays where the edge
+        is, and a track young enough to be born since has no pair yet (docs/experiments.md)."""
+        first = observation.index - len(observation.window) + 1
+        if (self.config.track_motion.corroboration <= 0 or self._evidence is None or observation.pair is None
+                or not first <= self._evidence[0] < observation.index):
             return None
-        _, _, now_ids, now = observation.pair
-        _, rows, columns = np.intersect1d(ids, now_ids, assume_unique=True, return_indices=True)
+        index, evidence = self._evidence
+        if not np.isfinite(evidence.threshold):
+            return None
+        then_ids, then = observation.window[index - first]
+        _, rows, columns = np.intersect1d(ids, then_ids, assume_unique=True, return_indices=True)
         scale = evidence.residual.shape[1] / observation.tracking_shape[1]
-        near = dense_near(now[columns] * scale, evidence.residual, self.config.corroboration_reach)
+        near = dense_near(then[columns] * scale, evidence.residual, self.config.corroboration_reach)
         values = np.full(ids.size, np.nan, dtype=np.float32)
         values[rows] = np.where(near >= self.config.corroboration_floor * evidence.threshold, np.inf,
                                 near / scale * self.config.track_motion.gap / self.config.dense_gap)

@@ -63,7 +63,7 @@ class Decision:
     dynamic_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     status: Status = Status.OK
     stages: dict[str, float] = field(default_factory=dict)  # seconds per stage of this frame, when measured
-    refit_age: int | None = None  # frames between this frame and the refit it applies (None: no refit)
+    refit_age: int | None = None  # frames between this frame and the refit whose flags it applies (None: no refit)
     refit_stages: dict[str, float] = field(default_factory=dict)  # that refit's stages, on its first frame only
 
 

@@ -14,12 +14,14 @@ regions that lie mostly outside every instance are published beside them (``with
 that does not know a kind of mover takes nothing away from what the method finds alone.
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
-(moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is
-done, whose moving tracks are drawn where they are now and whose dense mask is carried along the flow;
-``Decision.refit_age`` says how many frames old that refit is; with ``refit_wait_ms`` a frame waits that long at
-most for the refit of its own observation (age 0 when it comes in time), with -1 (the default) as long as the
-camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it. The stream's first
-decisions, from the second frame after a start or a reset to the first with a pair for the track test (``gap``
+(moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is done,
+whose moving tracks are drawn where they are now and whose dense mask is carried along the flow. Each refit hands
+over its track test first and its dense half (two thirds of its time) after it: a frame often gets a refit's track
+flags with the refit before's dense mask, since flags a frame younger gain more than a dense mask a frame older
+loses. ``Decision.refit_age`` says how many frames old the track flags are; with ``refit_wait_ms`` a frame waits
+that long at most for the whole refit of its own observation (age 0 when it comes in time), with -1 (the default) as
+long as the camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it. The stream's
+first decisions, from the second frame after a start or a reset to the first with a pair for the track test (``gap``
 frames apart), always wait for their own refits: before them there is nothing, or only one frame pair's dense
 evidence, to apply. "inline" refits every frame on the frame path (deterministic: the offline tools).
 """
@@ -76,7 +78,7 @@ class MovingObjects:
         self.config = config
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
-        self._worker = (BackgroundRefit(self._front_end.refit, nice=config.refit_nice, duty=config.refit_duty)
+        self._worker = (BackgroundRefit(self._fit_in_background, nice=config.refit_nice, duty=config.refit_duty)
                         if config.refit == "background" else None)
         self.reset()
 
@@ -86,7 +88,7 @@ class MovingObjects:
             self._front_end.reset()
         else:
             self._worker.clear(self._front_end.reset)
-        self._applied = -1
+        self._applied: tuple[int, int] | None = None
         self._warmed_up = False
         self._instance_decisions.reset()
 
@@ -114,9 +116,9 @@ class MovingObjects:
             decision.stages["refit_wait"] = waited
         if refit is not None:
             decision.refit_age = observation.index - refit.index
-            if refit.index != self._applied:
+            if (refit.index, refit.dense_index) != self._applied:
                 decision.refit_stages = dict(refit.stages)
-                self._applied = refit.index
+                self._applied = (refit.index, refit.dense_index)
             if self._worker is None:
                 decision.stages.update(refit.stages)
         return decision
@@ -151,10 +153,18 @@ class MovingObjects:
         if wait <= 0:
             return self._worker.latest(), 0.0
         start = time.perf_counter()
-        self._worker.wait_for(lambda refit: refit.index >= observation.index, wait)
+        self._worker.wait_for(lambda refit: refit.dense_index >= observation.index, wait)
         waited = time.perf_counter() - start
         self._raise_refit_error()
         return self._worker.latest(), waited
+
+    def _fit_in_background(self, observation: Observation) -> Refit:
+        """The worker's fit: the track test, handed over at once, then the dense half (a decision whose track
+        flags are a frame younger gains more than one whose dense mask is a frame older loses:
+        docs/experiments.md)."""
+        tracks = self._front_end.refit_tracks(observation)
+        self._worker.hand_over(tracks)
+        return self._front_end.refit_dense(observation, tracks)
 
     def _raise_refit_error(self) -> None:
         error = self._worker.take_error()
