@@ -91,9 +91,11 @@ class PipelineConfig:
                                 low=0.05, high=1.0)
     refit_wait_ms: float = setting(-1.0, "moving_objects: how long a frame may wait for the background refit of "
                                    "its own observation before it takes the newest refit done. -1 (auto): as long as "
-                                   "the camera's rate leaves before the next frame (at 10 Hz the refit fits, and the "
-                                   "masks are those of the offline tools; at 30 Hz there is no time, and decisions "
-                                   "are a frame or more old); 0: never waits, the lowest latency (only the stream's "
+                                   "the camera's rate leaves before the next frame, for the whole refit when it fits "
+                                   "in that time (the masks of the offline tools), else for its track half when that "
+                                   "fits (at 10 Hz on two cores: its own track flags, the dense mask a frame old); at "
+                                   "30 Hz there is no time, and decisions are a frame or more old); 0: never waits, "
+                                   "the lowest latency (only the stream's "
                                    "first decisions, up to the first with a pair for the track test, always wait for "
                                    "their own)", low=-1.0, high=1000.0)
     opencv_threads: int = setting(0, "threads OpenCV's tracking, flow and fits may use, for the whole process while "

@@ -395,6 +395,30 @@ class TestPipelineWithBackgroundRefit:
         ages = [r.refit_age for r in results[4:]]
         assert 1 <= np.mean(ages) < 3, ages
 
+    def test_auto_waits_for_the_track_half_when_only_it_fits(self, monkeypatch: pytest.MonkeyPatch) -> None:
+        """The next frame 0.4 s after each frame starts, and the dense half of each refit takes 0.33 s more: the
+        whole refit never fits in the time left (three quarters of it), its track half does, and the worker (fitting
+        back to back) is free again before the next frame, so every frame after the first decisions gets its own
+        track flags (age 0), waiting no longer than AUTO_WAIT_SHARE of that 0.4 s."""
+        from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
+
+        original = MotionFrontEnd.refit_dense
+
+        def slow(self, observation, tracks):
+            time.sleep(0.33)
+            return original(self, observation, tracks)
+
+        monkeypatch.setattr(MotionFrontEnd, "refit_dense", slow)
+        results = []
+        with Pipeline(PipelineConfig(refit_duty=1.0), live=True) as pipeline:
+            for i, frame in enumerate(textured_frames(12)):
+                due = time.monotonic() + 0.4
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000, next_frame_at=due))
+                time.sleep(max(0.0, due - time.monotonic()))
+        assert [r.refit_age for r in results[4:]] == [0] * 8
+        waits = [r.stages.get("refit_wait", 0.0) for r in results[4:]]
+        assert max(waits) <= AUTO_WAIT_SHARE * 0.4 + 0.01, waits
+
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
         original = MotionFrontEnd.refit_tracks
         calls = {"n": 0}

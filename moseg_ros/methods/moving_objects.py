@@ -20,10 +20,11 @@ over its track test first and its dense half (two thirds of its time) after it: 
 flags with the refit before's dense mask, since flags a frame younger gain more than a dense mask a frame older
 loses. ``Decision.refit_age`` says how many frames old the track flags are; with ``refit_wait_ms`` a frame waits
 that long at most for the whole refit of its own observation (age 0 when it comes in time), with -1 (the default) as
-long as the camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it. The stream's
-first decisions, from the second frame after a start or a reset to the first with a pair for the track test (``gap``
-frames apart), always wait for their own refits: before them there is nothing, or only one frame pair's dense
-evidence, to apply. "inline" refits every frame on the frame path (deterministic: the offline tools).
+long as the camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it, or for the
+track half alone when only that fits. The stream's first decisions, from the second frame after a start or a reset
+to the first with a pair for the track test (``gap`` frames apart), always wait for their own refits: before them
+there is nothing, or only one frame pair's dense evidence, to apply. "inline" refits every frame on the frame path
+(deterministic: the offline tools).
 """
 
 from __future__ import annotations
@@ -78,6 +79,7 @@ class MovingObjects:
         self.config = config
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
+        self._track_seconds = 0.0  # how long the worker's last track half (refit_tracks) took
         self._worker = (BackgroundRefit(self._fit_in_background, nice=config.refit_nice, duty=config.refit_duty)
                         if config.refit == "background" else None)
         self.reset()
@@ -123,37 +125,45 @@ class MovingObjects:
                 decision.stages.update(refit.stages)
         return decision
 
-    def _wait_seconds(self, frame: FrameInput) -> float:
-        """How long this frame may wait for its own background refit: ``refit_wait_ms``, or with -1 a share of the
-        time until the camera's next frame, when a refit fits in it (none when the next frame's time is not
-        known)."""
+    def _wait_seconds(self, frame: FrameInput) -> tuple[float, bool]:
+        """How long this frame may wait for its own background refit, and whether for the whole of it (else for
+        its track half): ``refit_wait_ms`` for the whole, or with -1 a share of the time until the camera's next
+        frame, for the whole refit when it fits in that time, else for its track half when that does (none when the
+        next frame's time is not known)."""
         if self.config.refit_wait_ms >= 0:
-            return self.config.refit_wait_ms / 1e3
+            return self.config.refit_wait_ms / 1e3, True
         if frame.next_frame_at is None or self._worker is None:
-            return 0.0
+            return 0.0, True
         budget = AUTO_WAIT_SHARE * (frame.next_frame_at - time.monotonic())
         # A wait shorter than a refit takes would end with the same older refit and only make the frame later (at
         # 30 Hz it made the node skip half of the frames).
-        return budget if budget >= self._worker.seconds else 0.0
+        if budget >= self._worker.seconds:
+            return budget, True
+        return (budget, False) if budget >= self._track_seconds else (0.0, True)
 
-    def _refit(self, observation: Observation, wait: float) -> tuple[Refit | None, float]:
+    def _refit(self, observation: Observation, wait: tuple[float, bool]) -> tuple[Refit | None, float]:
         """This frame's refit (inline), or the newest one the worker has done (background), after waiting up to
-        ``wait`` seconds for this frame's own; and the seconds it waited."""
+        ``wait`` seconds (the first of the pair) for this frame's own, the whole of it or (the second False) its
+        track half; and the seconds it waited."""
         if self._worker is None:
             return self._front_end.refit(observation), 0.0
         self._raise_refit_error()
         self._worker.submit(observation)
+        seconds, whole = wait
         if observation.index > 0 and not self._warmed_up:
             # Before the first refit of two frames there is only an empty mask to apply, and before the first with
             # a pair for the track test only one frame pair's dense evidence (at 30 Hz the stream's third and fourth
             # frames got a third less of KT3DMoSeg's moving points): the stream's first decisions, up to the first
-            # with a track pair, wait for their own refits (once a stream: a flag reset with it).
-            wait = max(wait, FIRST_REFIT_WAIT_S)
+            # with a track pair, wait for their own whole refits (once a stream: a flag reset with it).
+            seconds, whole = max(seconds, FIRST_REFIT_WAIT_S), True
             self._warmed_up = observation.pair is not None
-        if wait <= 0:
+        if seconds <= 0:
             return self._worker.latest(), 0.0
         start = time.perf_counter()
-        self._worker.wait_for(lambda refit: refit.dense_index >= observation.index, wait)
+        if whole:
+            self._worker.wait_for(lambda refit: refit.dense_index >= observation.index, seconds)
+        else:
+            self._worker.wait_for(lambda refit: refit.index >= observation.index, seconds)
         waited = time.perf_counter() - start
         self._raise_refit_error()
         return self._worker.latest(), waited
@@ -162,7 +172,9 @@ class MovingObjects:
         """The worker's fit: the track test, handed over at once, then the dense half (a decision whose track
         flags are a frame younger gains more than one whose dense mask is a frame older loses:
         docs/experiments.md)."""
+        start = time.perf_counter()
         tracks = self._front_end.refit_tracks(observation)
+        self._track_seconds = time.perf_counter() - start
         self._worker.hand_over(tracks)
         return self._front_end.refit_dense(observation, tracks)
 
