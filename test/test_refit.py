@@ -395,6 +395,41 @@ class TestPipelineWithBackgroundRefit:
         ages = [r.refit_age for r in results[4:]]
         assert 1 <= np.mean(ages) < 3, ages
 
+    @pytest.mark.parametrize("dense_seconds, every, skips", [(0.3, 3, True), (0.3, 1, False), (0.0, 3, False)])
+    def test_a_refit_slower_than_the_camera_leaves_out_dense_halves(self, monkeypatch: pytest.MonkeyPatch,
+                                                                    dense_seconds: float, every: int,
+                                                                    skips: bool) -> None:
+        """Frames every 0.1 s that never wait but the stream's first: with each dense half taking 0.3 s more the
+        whole refits cannot keep up, and with ``refit_dense_every`` 3 only about every third refit fits its dense
+        half (every one with 1); refits that keep up (no delay) always fit it. The first decisions, which wait for
+        their whole refits, always get them."""
+        calls = {"tracks": 0, "dense": 0}
+        tracks_half, dense_half = MotionFrontEnd.refit_tracks, MotionFrontEnd.refit_dense
+
+        def counted_tracks(self, observation):
+            calls["tracks"] += 1
+            return tracks_half(self, observation)
+
+        def counted_dense(self, observation, tracks):
+            calls["dense"] += 1
+            time.sleep(dense_seconds)
+            return dense_half(self, observation, tracks)
+
+        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", counted_tracks)
+        monkeypatch.setattr(MotionFrontEnd, "refit_dense", counted_dense)
+        config = PipelineConfig(refit="background", refit_wait_ms=0.0, refit_nice=0, refit_dense_every=every)
+        with Pipeline(config) as pipeline:
+            results = []
+            for i, frame in enumerate(textured_frames(20)):
+                results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
+                time.sleep(0.1)
+            pipeline.method._worker.wait_idle(5)
+        assert [r.refit_age for r in results[1:3]] == [0, 0]
+        if skips:
+            assert calls["tracks"] / 3 - 1 <= calls["dense"] < calls["tracks"] - 2, calls
+        else:
+            assert calls["dense"] == calls["tracks"], calls
+
     def test_auto_waits_for_the_track_half_when_only_it_fits(self, monkeypatch: pytest.MonkeyPatch) -> None:
         """The next frame 0.4 s after each frame starts, and the dense half of each refit takes 0.33 s more: the
         whole refit never fits in the time left (three quarters of it), its track half does, and the worker (fitting

@@ -79,7 +79,10 @@ class MovingObjects:
         self.config = config
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
-        self._track_seconds = 0.0  # how long the worker's last track half (refit_tracks) took
+        # How long the worker's last track half (refit_tracks) and last whole refit took, and the time between the
+        # last two frames' submissions (the camera's frame interval as the worker sees it).
+        self._track_seconds = self._whole_seconds = self._frame_interval = 0.0
+        self._submitted_at: float | None = None
         self._worker = (BackgroundRefit(self._fit_in_background, nice=config.refit_nice, duty=config.refit_duty)
                         if config.refit == "background" else None)
         self.reset()
@@ -87,12 +90,17 @@ class MovingObjects:
     def reset(self) -> None:
         """Forget every track and region (and, with a worker, the refit it runs or waits with)."""
         if self._worker is None:
-            self._front_end.reset()
+            self._reset_refit()
         else:
-            self._worker.clear(self._front_end.reset)
+            self._worker.clear(self._reset_refit)
         self._applied: tuple[int, int] | None = None
+        self._whole_wanted = -1  # the newest frame that waits for its whole refit
         self._warmed_up = False
         self._instance_decisions.reset()
+
+    def _reset_refit(self) -> None:
+        self._front_end.reset()
+        self._without_dense = 0  # the worker's refits since its last dense half
 
     def close(self) -> None:
         """Stop the refit worker, if any."""
@@ -148,7 +156,6 @@ class MovingObjects:
         if self._worker is None:
             return self._front_end.refit(observation), 0.0
         self._raise_refit_error()
-        self._worker.submit(observation)
         seconds, whole = wait
         if observation.index > 0 and not self._warmed_up:
             # Before the first refit of two frames there is only an empty mask to apply, and before the first with
@@ -157,6 +164,13 @@ class MovingObjects:
             # with a track pair, wait for their own whole refits (once a stream: a flag reset with it).
             seconds, whole = max(seconds, FIRST_REFIT_WAIT_S), True
             self._warmed_up = observation.pair is not None
+        if seconds > 0 and whole:
+            self._whole_wanted = observation.index  # before the submission: the worker fits its dense half
+        now = time.monotonic()
+        if self._submitted_at is not None:
+            self._frame_interval = now - self._submitted_at
+        self._submitted_at = now
+        self._worker.submit(observation)
         if seconds <= 0:
             return self._worker.latest(), 0.0
         start = time.perf_counter()
@@ -171,12 +185,21 @@ class MovingObjects:
     def _fit_in_background(self, observation: Observation) -> Refit:
         """The worker's fit: the track test, handed over at once, then the dense half (a decision whose track
         flags are a frame younger gains more than one whose dense mask is a frame older loses:
-        docs/experiments.md)."""
+        docs/experiments.md). While whole refits, with the worker's rests (``refit_duty``), take longer than the
+        camera's frame interval, only every ``refit_dense_every``-th refit fits its dense half, and that of a frame
+        that waits for its whole refit: the worker comes to the next track test sooner."""
         start = time.perf_counter()
         tracks = self._front_end.refit_tracks(observation)
         self._track_seconds = time.perf_counter() - start
+        self._without_dense += 1
+        behind = self._whole_seconds / self.config.refit_duty > self._frame_interval
+        if behind and self._without_dense < self.config.refit_dense_every and observation.index != self._whole_wanted:
+            return tracks
+        self._without_dense = 0
         self._worker.hand_over(tracks)
-        return self._front_end.refit_dense(observation, tracks)
+        refit = self._front_end.refit_dense(observation, tracks)
+        self._whole_seconds = time.perf_counter() - start
+        return refit
 
     def _raise_refit_error(self) -> None:
         error = self._worker.take_error()
