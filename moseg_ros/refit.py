@@ -31,7 +31,6 @@ class BackgroundRefit(Generic[Observation, Result]):
     Attributes:
         fitted: fits done since the start.
         replaced: submissions replaced by a newer one before the worker took them.
-        seconds: duration of the last fit.
         error: the exception of a fit that raised, without its traceback (the worker keeps running; the
             caller decides). The traceback would hold the failed fit's frames and their arrays, and a
             caller that raises the error again would tie them into a reference cycle that only a full
@@ -56,7 +55,6 @@ class BackgroundRefit(Generic[Observation, Result]):
         self._epoch = 0  # counts clear(): a fit taken before one is dropped
         self.fitted = 0
         self.replaced = 0
-        self.seconds = 0.0
         self.error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
@@ -151,7 +149,6 @@ class BackgroundRefit(Generic[Observation, Result]):
                 with self._cond:  # still under _fitting: a clear() cannot slip in between fit and hand-over
                     self._busy = False
                     if fresh:
-                        self.seconds = seconds
                         if error is None:
                             self._result = result
                             self.fitted += 1

@@ -145,7 +145,7 @@ class MovingObjects:
         budget = AUTO_WAIT_SHARE * (frame.next_frame_at - time.monotonic())
         # A wait shorter than a refit takes would end with the same older refit and only make the frame later (at
         # 30 Hz it made the node skip half of the frames).
-        if budget >= self._worker.seconds:
+        if budget >= self._whole_seconds:
             return budget, True
         return (budget, False) if budget >= self._track_seconds else (0.0, True)
 
