@@ -89,10 +89,11 @@ class PipelineConfig:
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
-    refit_dense_every: int = setting(3, "moving_objects: while a newer frame waits for the background refit "
-                                     "(the refit slower than the camera), only every this many refits fit their "
-                                     "dense half; the others hand over their track test alone, so that the track "
-                                     "flags, whose age costs most, come oftener (1: every refit)", low=1, high=100)
+    refit_dense_every: int = setting(3, "moving_objects: while whole background refits, with the worker's rests, "
+                                     "take longer than the camera's frame interval, only every this many refits fit "
+                                     "their dense half (and any refit a frame waits for whole); the others hand over "
+                                     "their track test alone, so that the track flags, whose age costs most, come "
+                                     "oftener (1: every refit)", low=1, high=100)
     refit_wait_ms: float = setting(-1.0, "moving_objects: how long a frame may wait for the background refit of "
                                    "its own observation before it takes the newest refit done. -1 (auto): as long as "
                                    "the camera's rate leaves before the next frame, for the whole refit when it fits "

@@ -99,6 +99,7 @@ class MovingObjects:
         self._instance_decisions.reset()
 
     def _reset_refit(self) -> None:
+        """The front-end's reset and the worker's own count (run while no refit runs)."""
         self._front_end.reset()
         self._without_dense = 0  # the worker's refits since its last dense half
 
