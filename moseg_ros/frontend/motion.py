@@ -313,6 +313,11 @@ class Observation:
     earlier: np.ndarray | None = None
 
     @property
+    def first(self) -> int:
+        """The frame number (``index``'s count) of the window's first frame: ``window[k]`` is frame ``first + k``."""
+        return self.index - len(self.window) + 1
+
+    @property
     def alive(self) -> np.ndarray:
         """Ids of the tracks living now."""
         return self.window[-1][0] if self.window else np.zeros(0, dtype=np.int64)
@@ -609,7 +614,7 @@ class MotionFrontEnd:
         that are still in ``observation``'s window: a background refit slower than the camera takes only the
         newest frame, and the window's track test would otherwise see only every second or third pair, and lose
         moving tracks (docs/experiments.md). Nothing to do when every frame is refitted."""
-        gap, first = self.config.track_motion.gap, observation.index - len(observation.window) + 1
+        gap, first = self.config.track_motion.gap, observation.first
         missed = range(max(self._fitted_through + 1, first + gap), observation.index)
         for index in missed[max(len(missed) - self.config.catch_up_pairs, 0):]:
             now = observation.window[index - first]
@@ -625,7 +630,7 @@ class MotionFrontEnd:
         NaN for tracks not seen then, None without dense evidence from a frame of the window or with the
         corroboration off. A frame earlier than the one tested: KLT's drift at a near edge stays where the edge
         is, and a track young enough to be born since has no pair yet (docs/experiments.md)."""
-        first = observation.index - len(observation.window) + 1
+        first = observation.first
         if (self.config.track_motion.corroboration <= 0 or self._evidence is None or observation.pair is None
                 or not first <= self._evidence[0] < observation.index):
             return None
