@@ -44,6 +44,21 @@ class TestFitAffineFlows:
         for model, params in zip(models, (A_OBJECT, A_BACKGROUND, A_OBJECT)):
             np.testing.assert_allclose(model, params, atol=1e-9)
 
+    def test_a_batch_fits_each_set_as_alone(self):
+        """Sets of very different sizes (a group's few tracks beside its background's hundreds), noisy and with
+        outliers, so that each set's own median decides its refit."""
+        rng = np.random.default_rng(3)
+        xy = [rng.uniform(0, 600, size=(n, 2)) for n in (500, 4, 9, 120)]
+        uv = [np.column_stack([points, np.ones(len(points))]) @ A_OBJECT + rng.normal(0, 0.3, (len(points), 2))
+              for points in xy]
+        uv[0][:60] += 15.0
+        uv[2][:2] -= 8.0
+        together = fit_affine_flows(xy, uv)
+        for points, flows, model in zip(xy, uv, together):
+            np.testing.assert_allclose(model, fit_affine_flows([points], [flows])[0], atol=1e-9)
+        design = np.column_stack([xy[0], np.ones(len(xy[0]))])
+        assert np.abs(design @ together[0] - design @ A_OBJECT).max() < 0.1  # the outliers left out
+
     def test_collinear_or_too_few_points_give_no_model(self):
         line = np.column_stack([np.arange(10.0), 2.0 * np.arange(10.0)])
         square = np.array([[0, 0], [10, 0], [0, 10], [10, 10]], dtype=np.float64)

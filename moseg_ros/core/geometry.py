@@ -72,6 +72,12 @@ def _collinear(x: np.ndarray, weights: np.ndarray, tol: float) -> np.ndarray:
     centroid = np.einsum("bn,bnc->bc", weights, x) / wsum[:, None]
     d = x - centroid[:, None, :]
     cov = (np.swapaxes(d * weights[..., None], 1, 2) @ d) / wsum[:, None, None]
+    return flat_covariance(cov, tol)
+
+
+def flat_covariance(cov: np.ndarray, tol: float = _DEFAULT_COLLINEAR_TOL) -> np.ndarray:
+    """(B,) bool: True where a (B, 2, 2) covariance (or scatter) of points is that of points (nearly) on a line,
+    its small eigenvalue below ``tol`` times its large one."""
     # Closed-form eigenvalues of the symmetric 2x2 covariance.
     half_trace = 0.5 * (cov[:, 0, 0] + cov[:, 1, 1])
     radius = np.sqrt(0.25 * (cov[:, 0, 0] - cov[:, 1, 1]) ** 2 + cov[:, 0, 1] ** 2)

@@ -29,8 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from moseg_ros.core.geometry import affine_fit, to_homogeneous
-from moseg_ros.core.track_motion import row_medians
+from moseg_ros.core.geometry import flat_covariance, to_homogeneous
 
 
 @dataclass(frozen=True)
@@ -53,9 +52,9 @@ class ObjectFlowConfig:
 
 
 def fit_affine_flows(xy: Sequence[np.ndarray], uv: Sequence[np.ndarray]) -> list[np.ndarray | None]:
-    """Robust least-squares affine flow models of several sets of points at once (core/geometry.affine_fit,
-    batched over the sets padded with weight 0: one fit and one refit for all, as a frame's groups and their
-    backgrounds need).
+    """Robust least-squares affine flow models of several sets of points at once (one fit and one refit for
+    all, as a frame's groups and their backgrounds need; the sets are stacked, not padded to the largest, whose
+    background may hold a hundred times a small group's tracks).
 
     Args:
         xy: S arrays (N_s, 2) of positions (x, y), each N_s >= 1.
@@ -67,27 +66,49 @@ def fit_affine_flows(xy: Sequence[np.ndarray], uv: Sequence[np.ndarray]) -> list
         three points or (near) collinear ones.
     """
     counts = np.array([len(points) for points in xy])
-    present = np.arange(int(counts.max())) < counts[:, None]
-    x1 = np.zeros((len(counts), present.shape[1], 2))
-    flow = np.zeros_like(x1)
-    x1[present], flow[present] = np.concatenate(xy), np.concatenate(uv)
-    maps, valid = affine_fit(x1, x1 + flow, present.astype(np.float64))
-    params = _flow_params(maps)
-    residual = np.linalg.norm(to_homogeneous(x1) @ params - flow, axis=-1)
-    limit = np.maximum(2.0 * row_medians(np.where(present, residual, np.nan)), 0.5)
-    keep = present & (residual <= limit[:, None])
-    again = valid & (keep.sum(axis=1) >= 3) & (keep.sum(axis=1) < counts)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    of_set = np.repeat(np.arange(len(counts)), counts)
+    points = np.concatenate(xy).astype(np.float64)
+    flow = np.concatenate(uv).astype(np.float64)
+    params, valid = _stacked_flow_fit(points, flow, starts, np.ones(len(points)))
+    predicted = np.einsum("nk,nkc->nc", to_homogeneous(points), params[of_set])
+    residual = np.hypot(*(predicted - flow).T)
+    limit = np.maximum(2.0 * _stacked_medians(residual, of_set, starts, counts), 0.5)
+    keep = residual <= limit[of_set]
+    kept = np.add.reduceat(keep, starts)
+    again = valid & (kept >= 3) & (kept < counts)
     if again.any():
-        maps, refitted = affine_fit(x1[again], x1[again] + flow[again], keep[again].astype(np.float64))
-        rows = np.flatnonzero(again)[refitted]
-        params[rows] = _flow_params(maps[refitted])
+        refitted, fitted = _stacked_flow_fit(points, flow, starts, (keep & again[of_set]).astype(np.float64))
+        better = again & fitted
+        params[better] = refitted[better]
     return [params[s] if valid[s] else None for s in range(len(counts))]
 
 
-def _flow_params(affine: np.ndarray) -> np.ndarray:
-    """(..., 3, 2) flow models A (uv = [x, y, 1] · A) of (..., 3, 3) affine maps x -> M x + t: the maps minus
-    identity."""
-    return np.swapaxes(affine[..., :2, :] - np.eye(2, 3), -1, -2)
+def _stacked_flow_fit(points: np.ndarray, flow: np.ndarray, starts: np.ndarray,
+                      weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted least-squares flow models (S, 3, 2) of S sets stacked in (N, 2) ``points`` and ``flow`` (set s
+    from ``starts[s]`` on), and (S,) valid: at least three weighted points, not on a line. Each set is centred on
+    its weighted centroid, which keeps its normal equations well conditioned."""
+    of_set = np.repeat(np.arange(len(starts)), np.diff(np.append(starts, len(points))))
+    total = np.add.reduceat(weights, starts)
+    centroid = np.add.reduceat(weights[:, None] * points, starts) / np.maximum(total, 1e-12)[:, None]
+    design = to_homogeneous(points - centroid[of_set])
+    weighted = weights[:, None] * design
+    gram = np.add.reduceat(weighted[:, :, None] * design[:, None, :], starts)
+    rhs = np.add.reduceat(weighted[:, :, None] * flow[:, None, :], starts)
+    valid = (np.add.reduceat(weights > 0, starts) >= 3) & ~flat_covariance(gram[:, :2, :2])
+    gram[~valid] = np.eye(3)
+    centred = np.linalg.solve(gram, rhs)
+    # uv = (x - c, 1) · B = (x, 1) · A with A's last row B's less c · B's first two.
+    params = centred.copy()
+    params[:, 2] -= np.einsum("sk,skc->sc", centroid, centred[:, :2])
+    return params, valid
+
+
+def _stacked_medians(values: np.ndarray, of_set: np.ndarray, starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """(S,) the median of each set's ``values`` (stacked as ``_stacked_flow_fit``'s; every set non-empty)."""
+    ordered = values[np.lexsort((values, of_set))]
+    return 0.5 * (ordered[starts + (counts - 1) // 2] + ordered[starts + counts // 2])
 
 
 def affine_flow_error(params: np.ndarray, flow: np.ndarray, x0: int, y0: int) -> np.ndarray:
