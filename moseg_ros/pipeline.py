@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.core.baseline import BaselineConfig
+from moseg_ros.core.flow_field import shrink_scale
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.frontend.torch_instances import TorchScriptInstances
 from moseg_ros.io.image import to_gray
@@ -48,6 +49,9 @@ class PipelineConfig:
                           "(tracks + dense flow, no weights); epipolar_baseline; object_level (needs use_instances)",
                           choices=METHODS)
     working_width: int = setting(640, "frames are processed at this width (pixels; dense flow)", low=64, high=4096)
+    working_pixels: int = setting(128_000, "frames are processed at no more than this many pixels (dense flow; a "
+                                  "4:3 camera at working_width would hold 2.5 times a KITTI frame's; 0: no "
+                                  "limit)", low=0, high=16_777_216)
     track_width: int = setting(1280, "moving_objects: KLT tracks run at this width (pixels)", low=64, high=4096)
     max_tracks: int = setting(2000, "moving_objects: points tracked per frame", low=50, high=20000)
     flow_preset: str = setting("auto", "DIS optical flow preset (auto: fast for epipolar_baseline, balanced for "
@@ -235,9 +239,10 @@ class Pipeline:
             self._instance_model.reset()
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
-        # Downscale to working_width, but never below MIN_WORKING_SIDE on a side that is at least that long.
-        scale = max(self.config.working_width / width, MIN_WORKING_SIDE / height, MIN_WORKING_SIDE / width)
-        scale = min(1.0, scale)
+        # Downscale to working_width and working_pixels, but never below MIN_WORKING_SIDE on a side that is at least
+        # that long.
+        scale = shrink_scale(height, width, self.config.working_width, self.config.working_pixels)
+        scale = min(1.0, max(scale, MIN_WORKING_SIDE / height, MIN_WORKING_SIDE / width))
         return round(height * scale), round(width * scale)
 
     def _reset_reason(self, size: tuple[int, int], stamp_ns: int) -> str | None:

@@ -4,9 +4,23 @@ from pathlib import Path
 
 import numpy as np
 
-from moseg_ros.core.flow_field import forward_backward_error, lands_inside, pixel_grid
+from moseg_ros.core.flow_field import forward_backward_error, lands_inside, pixel_grid, shrink_scale
 
 CORE = Path(__file__).resolve().parents[1] / "moseg_ros" / "core"
+
+
+class TestShrinkScale:
+    def test_a_wide_frame_is_shrunk_to_the_width(self):
+        assert shrink_scale(375, 1242, 640, 128_000) == 640 / 1242  # KITTI at 640x193 holds 123,520 pixels
+
+    def test_a_tall_frame_is_shrunk_to_the_pixel_count(self):
+        scale = shrink_scale(480, 640, 640, 128_000)
+        assert scale == np.sqrt(128_000 / (480 * 640))
+        assert round(480 * scale) * round(640 * scale) < 1.001 * 128_000  # to the sides' rounding
+
+    def test_no_pixel_limit_and_never_enlarged(self):
+        assert shrink_scale(480, 640, 640) == 1.0 and shrink_scale(480, 640, 640, 0) == 1.0
+        assert shrink_scale(100, 200, 640, 128_000) == 1.0
 
 
 class TestPixelGrid:

@@ -156,6 +156,26 @@ def test_object_level_survives_a_frame_without_instances():
     assert statuses == ["warmup"] + ["ok"] * 4 + ["no_instances"] + ["ok"] * 4
 
 
+def test_a_tall_frame_is_processed_at_no_more_than_working_pixels():
+    """A 4:3 camera at the working width would hold 2.5 times a KITTI frame's pixels: the dense frame, the seeds
+    and the instance maps all shrink to the pixel limit together (instances of another size than the method's
+    labels would fail the frame), and the masks come back at the input's size."""
+    from moseg_ros.synth.scenarios import render_sequence
+    sequence = render_sequence("crossing", seed=0, n_frames=6, width=320, height=240)
+    pipeline = Pipeline(PipelineConfig(working_pixels=20_000))
+    statuses = []
+    for frame in sequence.frames:
+        result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances)
+        statuses.append(result.status)
+        assert result.masks.dynamic.shape == (240, 320)
+    dense = pipeline.method._front_end._grays[-1]
+    assert dense.shape == (round(240 * np.sqrt(20_000 / 76_800)), round(320 * np.sqrt(20_000 / 76_800)))
+    assert statuses[0] == "warmup" and set(statuses[1:]) == {"ok"}
+    unlimited = Pipeline(PipelineConfig(working_pixels=0))
+    unlimited.process(sequence.frames[0].rgb, sequence.frames[0].stamp_ns)
+    assert unlimited.method._front_end._grays[-1].shape == (240, 320)
+
+
 @pytest.mark.parametrize("shape", [(8, 64), (31, 640), (16, 128), (30, 300), (1, 1), (15, 15), (1, 640), (640, 1),
                                    (31, 31, 3)])
 def test_frames_below_the_minimum_working_size_get_an_empty_mask(shape):

@@ -43,7 +43,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
 
     KLT: the front-end's tracker with ``max_tracks`` points on the frame at ``track_width``, guided by the
     dense flow and its backward check shared with it as the front-end does; flow: the DIS preset the method
-    runs, from each frame back to the one before at ``working_width``.
+    runs, from each frame back to the one before at ``working_width`` and ``working_pixels``.
     """
     from moseg_ros.frontend.flow import DenseFlow
     from moseg_ros.frontend.motion import resized_to_width
@@ -54,7 +54,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     flow = DenseFlow(config.dis_preset())
     grays = [to_gray(f, "mono8" if f.ndim == 2 else "rgb8") for f in frames]
     tracking = [resized_to_width(g, config.track_width) for g in grays]
-    dense = [resized_to_width(g, config.working_width) for g in grays]
+    dense = [resized_to_width(g, config.working_width, config.working_pixels) for g in grays]
     ms = []
     with opencv_threads(config.opencv_thread_count()):
         for i in range(len(frames)):

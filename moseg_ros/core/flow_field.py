@@ -1,5 +1,5 @@
-"""Dense flow fields as arrays: the pixel grid they are defined on, their round-trip (forward-backward) error
-and where they land.
+"""Dense flow fields as arrays: the size they are computed at, the pixel grid they are defined on, their
+round-trip (forward-backward) error and where they land.
 
 Pure numpy/OpenCV, shared by the per-pixel tests in core/ and the front-end that computes the flows.
 """
@@ -10,6 +10,16 @@ from functools import lru_cache
 
 import cv2
 import numpy as np
+
+
+def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0) -> float:
+    """The scale (at most 1) that shrinks a ``height`` x ``width`` frame to at most ``max_width`` pixels wide and,
+    when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides). A width alone lets a frame's cost grow with its
+    height: a 4:3 camera at 640 px wide holds 2.5 times the pixels of a KITTI frame at that width."""
+    scale = max_width / width
+    if max_pixels > 0:
+        scale = min(scale, float(np.sqrt(max_pixels / (height * width))))
+    return min(1.0, scale)
 
 
 @lru_cache(maxsize=8)

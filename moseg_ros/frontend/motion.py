@@ -58,7 +58,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
-from moseg_ros.core.flow_field import away_from_border, pixel_grid
+from moseg_ros.core.flow_field import away_from_border, pixel_grid, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
                                          behind_infinity, beyond_allowance, dense_parallax, guessed_camera_matrix,
@@ -95,6 +95,8 @@ class MotionFrontEndConfig:
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
+    # ...and no more pixels than this (0: any), so that a tall frame costs no more than a KITTI one.
+    dense_pixels: int = 0
     # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: DIS
     # extrapolates there, and in a turn the band entering the view came out moving (docs/experiments.md).
     dense_baseline: BaselineConfig = field(default_factory=lambda: BaselineConfig(
@@ -163,10 +165,10 @@ def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) ->
     return np.diag([resized[1] / size[1], resized[0] / size[0], 1.0]) @ K
 
 
-def resized_to_width(gray: np.ndarray, width: int) -> np.ndarray:
-    """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide, keeping its aspect and at least 32 px a side;
-    returned as is when it is not wider."""
-    scale = min(1.0, width / gray.shape[1])
+def resized_to_width(gray: np.ndarray, width: int, max_pixels: int = 0) -> np.ndarray:
+    """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide and, when ``max_pixels`` > 0, at most that many pixels
+    (``shrink_scale``), keeping its aspect and at least 32 px a side; returned as is when it is not larger."""
+    scale = shrink_scale(*gray.shape, width, max_pixels)
     if scale == 1.0:
         return gray
     size = (max(32, round(gray.shape[1] * scale)), max(32, round(gray.shape[0] * scale)))
@@ -438,7 +440,7 @@ class MotionFrontEnd:
         self.stages.clear()
         self._index += 1
         with self.stages("tracks"):
-            self._grays.append(resized_to_width(gray, self.config.dense_width))
+            self._grays.append(resized_to_width(gray, self.config.dense_width, self.config.dense_pixels))
         flows, earlier = None, None
         if self.config.dense and len(self._grays) > self.config.dense_gap:
             with self.stages("flow"):

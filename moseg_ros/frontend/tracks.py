@@ -14,6 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from moseg_ros.core.flow_field import shrink_scale
+
 
 @dataclass(frozen=True)
 class TrackerConfig:
@@ -36,9 +38,10 @@ class TrackerConfig:
     # Pyramid levels above the finest that KLT searches when a dense flow gives it a starting guess: the guess
     # is within a pixel or two except on small fast movers, which one coarser level still reaches.
     guided_levels: int = 1
-    # New corners are found on the frame shrunk to this width (0: at full size): a third of the cost at
-    # half size, and ``min_distance`` still holds in full-size pixels.
+    # New corners are found on the frame shrunk to this width (0: at full size) and to at most ``seed_pixels``
+    # pixels (0: any): a third of the cost at half size, and ``min_distance`` still holds in full-size pixels.
     seed_width: int = 0
+    seed_pixels: int = 0
 
 
 class PointTracker:
@@ -77,7 +80,8 @@ class PointTracker:
         aspect (its vectors in its own pixels): inverted, KLT's starting guess (``landing``); the points it
         brings back near their start skip KLT's backward pass.
         ``shrunk``: optional ``gray`` already shrunk (INTER_AREA) by the caller; corners are found on it when it
-        is ``seed_width`` wide, instead of shrinking ``gray`` again (the motion front-end's dense frame)."""
+        has the size ``seed_width`` and ``seed_pixels`` give, instead of shrinking ``gray`` again (the motion
+        front-end's dense frame)."""
         self.flow_checked = 0.0
         if self._previous is not None and len(self.points):
             self._track(self._previous, gray, backward_flow)
@@ -117,9 +121,10 @@ class PointTracker:
         if wanted <= 0:
             return
         width = self.config.seed_width
-        shrink = gray.shape[1] / width if 0 < width < gray.shape[1] else 1.0
+        scale = shrink_scale(*gray.shape, width, self.config.seed_pixels) if width > 0 else 1.0
+        shrink = 1.0 / scale
         if shrink > 1:
-            size = (width, max(1, round(gray.shape[0] / shrink)))
+            size = (max(1, round(gray.shape[1] * scale)), max(1, round(gray.shape[0] * scale)))
             gray = (shrunk if shrunk is not None and shrunk.shape == size[::-1]
                     else cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
         spacing = max(1, round(self.config.min_distance / shrink))

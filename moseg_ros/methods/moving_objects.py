@@ -61,8 +61,10 @@ def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
     """The front-end's settings from the pipeline's (one declaration per setting: PipelineConfig)."""
     base = MotionFrontEndConfig()
     return replace(base, window_length=config.window_length,
-                   tracks=replace(base.tracks, max_points=config.max_tracks, seed_width=config.working_width),
-                   dense_width=config.working_width, min_region_area=config.min_region_area)
+                   tracks=replace(base.tracks, max_points=config.max_tracks, seed_width=config.working_width,
+                                  seed_pixels=config.working_pixels),
+                   dense_width=config.working_width, dense_pixels=config.working_pixels,
+                   min_region_area=config.min_region_area)
 
 
 class MovingObjects:
