@@ -239,10 +239,7 @@ class Pipeline:
             self._instance_model.reset()
 
     def _working_size(self, height: int, width: int) -> tuple[int, int]:
-        # Downscale to working_width and working_pixels, but never below MIN_WORKING_SIDE on a side that is at least
-        # that long.
-        scale = shrink_scale(height, width, self.config.working_width, self.config.working_pixels)
-        scale = min(1.0, max(scale, MIN_WORKING_SIDE / height, MIN_WORKING_SIDE / width))
+        scale = shrink_scale(height, width, self.config.working_width, self.config.working_pixels, MIN_WORKING_SIDE)
         return round(height * scale), round(width * scale)
 
     def _reset_reason(self, size: tuple[int, int], stamp_ns: int) -> str | None:

@@ -18,6 +18,10 @@ class TestShrinkScale:
         assert scale == np.sqrt(128_000 / (480 * 640))
         assert round(480 * scale) * round(640 * scale) < 1.001 * 128_000  # to the sides' rounding
 
+    def test_no_side_below_the_least_unless_it_is_shorter(self):
+        assert shrink_scale(40, 1242, 640, 0, 32) == 32 / 40  # not 640x21: DIS crashes on heights below 32
+        assert shrink_scale(480, 640, 640, 100, 32) == 32 / 480 and shrink_scale(20, 640, 640, 0, 32) == 1.0
+
     def test_no_pixel_limit_and_never_enlarged(self):
         assert shrink_scale(480, 640, 640) == 1.0 and shrink_scale(480, 640, 640, 0) == 1.0
         assert shrink_scale(100, 200, 640, 128_000) == 1.0

@@ -12,14 +12,15 @@ import cv2
 import numpy as np
 
 
-def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0) -> float:
+def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0, min_side: int = 0) -> float:
     """The scale (at most 1) that shrinks a ``height`` x ``width`` frame to at most ``max_width`` pixels wide and,
-    when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides). A width alone lets a
-    frame's cost grow with its height: a 4:3 camera at 640 px wide holds 2.5 times a KITTI frame's pixels."""
+    when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides), but no side below
+    ``min_side`` that is at least that long. A width alone lets a frame's cost grow with its height: a 4:3 camera
+    at 640 px wide holds 2.5 times a KITTI frame's pixels."""
     scale = max_width / width
     if max_pixels > 0:
         scale = min(scale, float(np.sqrt(max_pixels / (height * width))))
-    return min(1.0, scale)
+    return min(1.0, max(scale, min_side / height, min_side / width))
 
 
 @lru_cache(maxsize=8)

@@ -95,7 +95,8 @@ class MotionFrontEndConfig:
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
-    # ...and no more pixels than this (0: any), so that a tall frame costs no more than a KITTI one.
+    # The dense frame holds at most this many pixels too (0: any; the pipeline's ``working_pixels``), so that a
+    # tall frame costs what a KITTI one does.
     dense_pixels: int = 0
     # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: DIS
     # extrapolates there, and in a turn the band entering the view came out moving (docs/experiments.md).
@@ -166,12 +167,13 @@ def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) ->
 
 
 def resized_to_width(gray: np.ndarray, width: int, max_pixels: int = 0) -> np.ndarray:
-    """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide and, when ``max_pixels`` > 0, at most that many pixels
-    (``shrink_scale``), keeping its aspect and at least 32 px a side; returned as is when it is not larger."""
-    scale = shrink_scale(*gray.shape, width, max_pixels)
+    """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide and, when ``max_pixels`` > 0, at most that many pixels,
+    keeping its aspect and at least 32 px a side (``shrink_scale``: the pipeline's working size); returned as is
+    when it is not larger."""
+    scale = shrink_scale(*gray.shape, width, max_pixels, 32)
     if scale == 1.0:
         return gray
-    size = (max(32, round(gray.shape[1] * scale)), max(32, round(gray.shape[0] * scale)))
+    size = (round(gray.shape[1] * scale), round(gray.shape[0] * scale))
     return cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
 
 
