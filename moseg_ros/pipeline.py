@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from moseg_ros.core.baseline import BaselineConfig
-from moseg_ros.core.flow_field import shrink_scale
+from moseg_ros.core.flow_field import MIN_WORKING_SIDE, shrink_scale
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.frontend.torch_instances import TorchScriptInstances
 from moseg_ros.io.image import to_gray
@@ -34,9 +34,6 @@ METHODS = tuple(METHOD_CLASSES)
 # auto: each method's own preset (methods/*.py: fast for epipolar_baseline, balanced for moving_objects; medium
 # for object_level, whose ground-contact test compares flows of a pixel or two).
 FLOW_PRESETS = ("auto", *DIS_PRESETS)
-# Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
-# 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
-MIN_WORKING_SIDE = 32
 REFIT_MODES = ("auto", "background", "inline")
 
 

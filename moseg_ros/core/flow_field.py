@@ -12,6 +12,11 @@ import cv2
 import numpy as np
 
 
+# Smallest working side, in pixels. cv2.DISOpticalFlow.calc segfaults on heights of about 8-31 px at widths of
+# 48 px and more (OpenCV 5.0.0); KLT and resize raise on 1-15 px frames. Probed: 32 is safe at widths 31-4096.
+MIN_WORKING_SIDE = 32
+
+
 def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0, min_side: int = 0) -> float:
     """The scale (at most 1) that shrinks a ``height`` x ``width`` frame to at most ``max_width`` pixels wide and,
     when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides), but no side below

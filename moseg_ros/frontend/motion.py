@@ -58,7 +58,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
-from moseg_ros.core.flow_field import away_from_border, pixel_grid, shrink_scale
+from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, pixel_grid, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
                                          behind_infinity, beyond_allowance, dense_parallax, guessed_camera_matrix,
@@ -168,9 +168,9 @@ def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) ->
 
 def resized_to_width(gray: np.ndarray, width: int, max_pixels: int = 0) -> np.ndarray:
     """``gray`` shrunk (INTER_AREA) to ``width`` pixels wide and, when ``max_pixels`` > 0, at most that many pixels,
-    keeping its aspect and at least 32 px a side (``shrink_scale``: the pipeline's working size); returned as is
-    when it is not larger."""
-    scale = shrink_scale(*gray.shape, width, max_pixels, 32)
+    keeping its aspect and at least MIN_WORKING_SIDE px a side (``shrink_scale``: the pipeline's working size);
+    returned as is when it is not larger."""
+    scale = shrink_scale(*gray.shape, width, max_pixels, MIN_WORKING_SIDE)
     if scale == 1.0:
         return gray
     size = (round(gray.shape[1] * scale), round(gray.shape[0] * scale))
