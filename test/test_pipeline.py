@@ -157,9 +157,9 @@ def test_object_level_survives_a_frame_without_instances():
 
 
 def test_a_tall_frame_is_processed_at_no_more_than_working_pixels():
-    """A 4:3 camera at the working width would hold 2.5 times a KITTI frame's pixels: the dense frame, the seeds
-    and the instance maps all shrink to the pixel limit together (instances of another size than the method's
-    labels would fail the frame), and the masks come back at the input's size."""
+    """A 4:3 camera at the working width would hold 2.5 times a KITTI frame's pixels: the front-end's dense frame
+    shrinks to the pixel limit as the pipeline's working size (and its instance maps) does, every frame with
+    instances is processed, and the masks come back at the input's size."""
     from moseg_ros.synth.scenarios import render_sequence
     sequence = render_sequence("crossing", seed=0, n_frames=6, width=320, height=240)
     pipeline = Pipeline(PipelineConfig(working_pixels=20_000))
