@@ -1,8 +1,45 @@
-"""core/baseline.dynamic_instances: which instances move, from per-pixel evidence."""
+"""core/baseline: the per-pixel two-view distances and dynamic_instances (which instances move, from per-pixel
+evidence)."""
 
 import numpy as np
 
-from moseg_ros.core.baseline import DENSE_IDS, dynamic_instances
+from moseg_ros.core import geometry
+from moseg_ros.core.baseline import DENSE_IDS, dynamic_instances, homography_distance, sampson_pixels
+
+
+def correspondences(n: int = 500, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) float32 pixels of a 640x360 frame and their matches a few pixels away."""
+    rng = np.random.default_rng(seed)
+    points = (rng.random((n, 2)) * (640, 360)).astype(np.float32)
+    return points, points + rng.normal(0, 3, (n, 2)).astype(np.float32)
+
+
+class TestHomographyDistance:
+    H = np.array([[1.02, 0.01, -4.0], [-0.015, 0.99, 2.5], [2e-5, -1e-5, 1.0]])
+
+    def test_shape_and_dtype(self):
+        points, matches = correspondences()
+        distance = homography_distance(self.H, points, matches)
+        assert distance.shape == (500,) and distance.dtype == np.float32
+
+    def test_exact_matches_are_at_zero(self):
+        points, _ = correspondences()
+        h = geometry.to_homogeneous(points.astype(np.float64)) @ self.H.T
+        matches = (h[:, :2] / h[:, 2:]).astype(np.float32)
+        assert homography_distance(self.H, points, matches).max() < 1e-3
+
+    def test_equals_the_batched_symmetric_transfer_error(self):
+        points, matches = correspondences()
+        batched = np.sqrt(0.5 * geometry.homography_transfer_error(self.H[None], points, matches)[0])
+        np.testing.assert_allclose(homography_distance(self.H, points, matches), batched, rtol=1e-4, atol=1e-3)
+
+
+class TestSampsonPixels:
+    def test_equals_the_batched_sampson_distance(self):
+        points, matches = correspondences(seed=1)
+        F = np.array([[0.0, -1e-3, 0.2], [1e-3, 0.0, -0.4], [-0.2, 0.4, 1e-3]])
+        batched = np.sqrt(geometry.sampson_distance(F[None], points, matches)[0])
+        np.testing.assert_allclose(sampson_pixels(F, points, matches), batched, rtol=1e-4, atol=1e-3)
 
 
 class TestDynamicInstances:

@@ -81,8 +81,21 @@ def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndar
 
 
 def homography_distance(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """(N,) root-mean symmetric transfer error in pixels of N correspondences (matches ~ H points)."""
-    return np.sqrt(0.5 * geometry.homography_transfer_error(homography[None], points, matches)[0])
+    """(N,) root-mean symmetric transfer error in pixels of N correspondences (matches ~ H points): the one-model
+    case of geometry.homography_transfer_error (HZ eq. 4.7), written out in float32 as ``sampson_pixels`` is."""
+    squared = _transferred(homography, points, matches) + _transferred(np.linalg.inv(homography), matches, points)
+    return np.sqrt(np.float32(0.5) * squared)
+
+
+def _transferred(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
+    """(N,) float32 ||matches - H points||² of (N, 2) correspondences."""
+    H = homography.astype(np.float32)
+    x, y = points[:, 0].astype(np.float32, copy=False), points[:, 1].astype(np.float32, copy=False)
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    w = np.where(np.abs(w) < 1e-12, np.float32(1e-12), w)
+    u = (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w - matches[:, 0]
+    v = (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w - matches[:, 1]
+    return u * u + v * v
 
 
 def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
