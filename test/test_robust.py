@@ -40,6 +40,42 @@ class TestFundamentalRansac:
         assert robust.fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, 1.0) == (None, None)
 
 
+class TestFundamentalPolished:
+    @staticmethod
+    def noisy_pair(seed: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """A rigid pair with 0.2 px noise and a fifth of the matches thrown far off (and which those are)."""
+        x1, x2 = _rigid_pair(1000, seed)
+        rng = np.random.default_rng(seed)
+        x2 = x2 + rng.normal(0, 0.2, x2.shape)
+        outliers = rng.random(1000) < 0.2
+        x2[outliers] += rng.uniform(-40, 40, (outliers.sum(), 2))
+        return x1.astype(np.float32), x2.astype(np.float32), outliers
+
+    def test_shapes(self):
+        x1, x2, _ = self.noisy_pair()
+        F, inliers = robust.fundamental_polished(x1, x2, 0.5)
+        assert F.shape == (3, 3) and inliers.shape == (1000,) and inliers.dtype == bool
+
+    def test_inliers_are_the_rigid_matches(self):
+        x1, x2, outliers = self.noisy_pair()
+        _, inliers = robust.fundamental_polished(x1, x2, 0.5)
+        assert inliers[outliers].mean() < 0.05  # an outlier thrown along its epipolar line stays an inlier
+        assert inliers[~outliers].mean() > 0.9
+
+    def test_the_refits_hold_at_least_the_ransac_inliers(self):
+        x1, x2, _ = self.noisy_pair(3)
+        _, plain = robust.fundamental_polished(x1, x2, 0.5, rounds=0)
+        _, polished = robust.fundamental_polished(x1, x2, 0.5)
+        assert polished.sum() >= plain.sum()
+
+    def test_too_few_points_and_opencv_failure(self, monkeypatch):
+        x1, x2 = _rigid_pair(5)
+        assert robust.fundamental_polished(x1, x2, 0.5) == (None, None)
+        monkeypatch.setattr(cv2, "findFundamentalMat", _raise)
+        x1, x2 = _rigid_pair()
+        assert robust.fundamental_polished(x1, x2, 0.5) == (None, None)
+
+
 class TestHomographyRansac:
     def test_known_homography(self):
         rng = np.random.default_rng(1)

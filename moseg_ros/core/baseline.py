@@ -21,7 +21,7 @@ import numpy as np
 
 from moseg_ros.core import geometry
 from moseg_ros.core.flow_field import forward_backward_error, lands_inside, pixel_grid
-from moseg_ros.core.robust import fundamental_ransac, homography_ransac
+from moseg_ros.core.robust import fundamental_polished, homography_ransac
 
 
 @dataclass(frozen=True)
@@ -138,8 +138,7 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         noise = 1.4826 * float(np.median(np.linalg.norm(matches - points, axis=1)))
         threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
         return EpipolarResidual(residual, valid, float(threshold), None, 1.0, identity)
-    fundamental, inliers = fundamental_ransac(points, matches, cv2.USAC_FAST, config.ransac_threshold_px,
-                                              0.999, 2000)
+    fundamental, inliers = fundamental_polished(points, matches, config.ransac_threshold_px, 0.999, 2000)
     if fundamental is None or inliers.sum() < config.min_inliers:
         return empty
 

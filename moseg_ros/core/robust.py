@@ -11,6 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from moseg_ros.core.geometry import sampson_distance
+
 Fit = tuple[np.ndarray, np.ndarray] | tuple[None, None]
 
 
@@ -30,6 +32,27 @@ def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px
     except cv2.error:
         return None, None
     return _checked(model, inliers)
+
+
+def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, confidence: float = 0.999,
+                         max_iterations: int = 1000, rounds: int = 2) -> Fit:
+    """F with x2^T F x1 = 0 and its (N,) bool inliers (Sampson distance at most ``threshold_px``): OpenCV's plain
+    seven-point RANSAC, then up to ``rounds`` least-squares (normalised eight-point) refits on the inliers, each
+    kept while it holds no fewer of them; (None, None) as ``fundamental_ransac``.
+
+    The refits are the local optimisation that USAC_FAST runs, without its cost: on dense-flow samples (about
+    1,200, most of them inliers) it took 3-10 ms a call with spikes to 39 ms, this 0.6-0.8 ms, with as many
+    inliers and the same spread of their distances (docs/experiments.md)."""
+    model, inliers = fundamental_ransac(x1, x2, cv2.FM_RANSAC, threshold_px, confidence, max_iterations)
+    for _ in range(rounds if model is not None else 0):
+        refit, _ = fundamental_ransac(x1[inliers], x2[inliers], cv2.FM_8POINT, threshold_px)
+        if refit is None:
+            break
+        held = sampson_distance(refit[None], x1, x2)[0] <= threshold_px ** 2
+        if held.sum() < inliers.sum():
+            break
+        model, inliers = refit, held
+    return model, inliers
 
 
 def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float,
