@@ -40,9 +40,9 @@ def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, co
     seven-point RANSAC, then up to ``rounds`` least-squares (normalised eight-point) refits on the inliers, each
     kept while it holds no fewer of them; (None, None) as ``fundamental_ransac``.
 
-    The refits are the local optimisation that USAC_FAST runs, without its cost: on dense-flow samples (about
-    1,200, most of them inliers) it took 3-10 ms a call with spikes to 39 ms, this 0.6-0.8 ms, with as many
-    inliers and the same spread of their distances (docs/experiments.md)."""
+    The refits are the local optimisation that USAC_FAST and MAGSAC++ run, without their cost, which grows with the
+    number of points rather than of iterations: on a frame's dense-flow samples or tracks, mostly inliers, this
+    keeps as many inliers with the same spread of their distances in a fraction of the time (docs/experiments.md)."""
     model, inliers = fundamental_ransac(x1, x2, cv2.FM_RANSAC, threshold_px, confidence, max_iterations)
     for _ in range(rounds if model is not None else 0):
         refit, _ = fundamental_ransac(x1[inliers], x2[inliers], cv2.FM_8POINT, threshold_px)

@@ -100,10 +100,9 @@ class TrackMotionConfig:
 
     gap: int = 2
     # The homographies' RANSAC threshold; F's inliers are the tracks within ``inlier_px`` of its epipolar lines
-    # (Sampson distance) under a plain RANSAC F refitted by least squares on them (core.robust.fundamental_polished):
-    # as good as MAGSAC++ on KT3DMoSeg at a sixth of its time (docs/experiments.md); KLT's error over ``gap``
-    # frames needs the wider band (at 1 px F's inliers left out tracks it fits, and 2.9 % of static points were
-    # flagged against 2.6 %).
+    # (Sampson distance) under a plain RANSAC F refitted by least squares on them (core.robust.fundamental_polished),
+    # as good as MAGSAC++ and much cheaper. KLT's error over ``gap`` frames needs the wider band: at 1 px F's
+    # inliers left out tracks it fits and more static points were flagged (docs/experiments.md).
     ransac_px: float = 1.0
     inlier_px: float = 2.0
     factor: float = 3.0

@@ -157,8 +157,8 @@ class MotionFrontEndConfig:
     memory_frames: int = 1
     memory_veto: int = 3
     # The most track pairs of skipped frames a refit fits before its own, newest first (``_catch_up``): each costs
-    # as much as the refit's own pair fit (about 1 ms since the polished RANSAC; 4 ms by MAGSAC++, when one was the
-    # most a refit could afford). 8: every skipped frame's of a window of eight.
+    # as much as the refit's own pair fit (one was the most a refit could afford while MAGSAC++ fitted them). 8:
+    # every skipped frame's of a window of eight.
     catch_up_pairs: int = 8
 
 
