@@ -90,7 +90,7 @@ class PipelineConfig:
                                 "after each refit its worker rests so long that it fits no more (1: back to back). "
                                 "Below 1 the frame path keeps the second core oftener, and decisions are older",
                                 low=0.05, high=1.0)
-    refit_dense_every: int = setting(3, "moving_objects: while whole background refits, with the worker's rests, "
+    refit_dense_every: int = setting(2, "moving_objects: while whole background refits, with the worker's rests, "
                                      "take longer than the camera's frame interval, only every this many refits fit "
                                      "their dense half (and any refit a frame waits for whole); the others hand over "
                                      "their track test alone, so that the track flags, whose age costs most, come "
