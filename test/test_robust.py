@@ -62,6 +62,20 @@ class TestFundamentalPolished:
         assert inliers[outliers].mean() < 0.05  # an outlier thrown along its epipolar line stays an inlier
         assert inliers[~outliers].mean() > 0.9
 
+    def test_mostly_outliers_go_to_magsac_and_the_rigid_matches_are_still_found(self, monkeypatch):
+        """Seven tenths thrown off: plain RANSAC's few iterations find less than ``min_share``, MAGSAC++ decides."""
+        x1, x2 = _rigid_pair(1500, 4)
+        rng = np.random.default_rng(0)
+        outliers = rng.random(1500) < 0.7
+        x2 = x2 + rng.normal(0, 0.2, x2.shape)
+        x2[outliers] += rng.uniform(-40, 40, (outliers.sum(), 2))
+        methods = []
+        plain = robust.fundamental_ransac
+        monkeypatch.setattr(robust, "fundamental_ransac", lambda *a, **k: methods.append(a[2]) or plain(*a, **k))
+        _, inliers = robust.fundamental_polished(x1.astype(np.float32), x2.astype(np.float32), 1.0)
+        assert cv2.USAC_MAGSAC in methods
+        assert inliers[~outliers].mean() > 0.95 and inliers[outliers].mean() < 0.1
+
     def test_the_refits_hold_at_least_the_ransac_inliers(self):
         x1, x2, _ = self.noisy_pair(3)
         _, plain = robust.fundamental_polished(x1, x2, 0.5, rounds=0)

@@ -138,7 +138,7 @@ def epipolar_residual(to_previous: np.ndarray, to_current: np.ndarray,
         noise = 1.4826 * float(np.median(np.linalg.norm(matches - points, axis=1)))
         threshold = max(config.residual_threshold_px, config.residual_noise_factor * noise)
         return EpipolarResidual(residual, valid, float(threshold), None, 1.0, identity)
-    fundamental, inliers = fundamental_polished(points, matches, config.ransac_threshold_px, 0.999, 2000)
+    fundamental, inliers = fundamental_polished(points, matches, config.ransac_threshold_px)
     if fundamental is None or inliers.sum() < config.min_inliers:
         return empty
 

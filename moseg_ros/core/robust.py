@@ -35,24 +35,35 @@ def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px
 
 
 def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, confidence: float = 0.999,
-                         max_iterations: int = 1000, rounds: int = 2) -> Fit:
+                         max_iterations: int = 100, rounds: int = 2, min_share: float = 0.7) -> Fit:
     """F with x2^T F x1 = 0 and its (N,) bool inliers (Sampson distance at most ``threshold_px``): OpenCV's plain
     seven-point RANSAC, then up to ``rounds`` least-squares (normalised eight-point) refits on the inliers, each
     kept while it holds no fewer of them; (None, None) as ``fundamental_ransac``.
 
     The refits are the local optimisation that USAC_FAST and MAGSAC++ run, without their cost, which grows with the
     number of points rather than of iterations: on a frame's dense-flow samples or tracks, mostly inliers, this
-    keeps as many inliers with the same spread of their distances in a fraction of the time (docs/experiments.md)."""
+    keeps as many inliers with the same spread of their distances in a fraction of the time (docs/experiments.md).
+    Plain RANSAC has no early rejection of bad samples, though, and the iterations it needs grow steeply with the
+    outliers' share: it gets ``max_iterations`` (enough while ``min_share`` of the points are inliers), and data
+    where it finds fewer inliers than that go to MAGSAC++ at the same threshold, whose cost stays bounded."""
     model, inliers = fundamental_ransac(x1, x2, cv2.FM_RANSAC, threshold_px, confidence, max_iterations)
+    if model is not None and inliers.mean() < min_share:
+        model, _ = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, threshold_px)
+        inliers = None if model is None else _within(model, x1, x2, threshold_px)
     for _ in range(rounds if model is not None else 0):
         refit, _ = fundamental_ransac(x1[inliers], x2[inliers], cv2.FM_8POINT, threshold_px)
         if refit is None:
             break
-        held = sampson_distance(refit[None], x1, x2)[0] <= threshold_px ** 2
+        held = _within(refit, x1, x2, threshold_px)
         if held.sum() < inliers.sum():
             break
         model, inliers = refit, held
     return model, inliers
+
+
+def _within(fundamental: np.ndarray, x1: np.ndarray, x2: np.ndarray, threshold_px: float) -> np.ndarray:
+    """(N,) bool: the correspondences whose Sampson distance under F is at most ``threshold_px``."""
+    return sampson_distance(fundamental[None], x1, x2)[0] <= threshold_px ** 2
 
 
 def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float,

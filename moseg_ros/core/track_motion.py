@@ -706,7 +706,7 @@ def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = Tr
     if np.median(np.linalg.norm(x2 - x1, axis=1)) < config.min_parallax_px:
         # The camera stands still: the dominant motion is the identity, any motion is the residual.
         return PairEvidence(np.linalg.norm(x2 - x1, axis=1).astype(np.float32))
-    fundamental, f_inliers = fundamental_polished(x1, x2, config.inlier_px, 0.999, 2000)
+    fundamental, f_inliers = fundamental_polished(x1, x2, config.inlier_px)
     if fundamental is None:
         return None
     homography, h_inliers = (homography_ransac(x1, x2, cv2.USAC_MAGSAC, config.ransac_px)
