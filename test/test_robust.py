@@ -82,6 +82,14 @@ class TestFundamentalPolished:
         _, polished = robust.fundamental_polished(x1, x2, 0.5)
         assert polished.sum() >= plain.sum()
 
+    def test_no_model_from_plain_ransac_goes_to_magsac(self, monkeypatch):
+        x1, x2 = _rigid_pair()
+        plain = robust.fundamental_ransac
+        monkeypatch.setattr(robust, "fundamental_ransac",
+                            lambda *a, **k: (None, None) if a[2] == cv2.FM_RANSAC else plain(*a, **k))
+        F, inliers = robust.fundamental_polished(x1, x2, 0.5)
+        assert F is not None and inliers.mean() > 0.95
+
     def test_too_few_points_and_opencv_failure(self, monkeypatch):
         x1, x2 = _rigid_pair(5)
         assert robust.fundamental_polished(x1, x2, 0.5) == (None, None)

@@ -45,9 +45,10 @@ def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, co
     keeps as many inliers with the same spread of their distances in a fraction of the time (docs/experiments.md).
     Plain RANSAC has no early rejection of bad samples, though, and the iterations it needs grow steeply with the
     outliers' share: it gets ``max_iterations`` (enough while ``min_share`` of the points are inliers), and data
-    where it finds fewer inliers than that go to MAGSAC++ at the same threshold, whose cost stays bounded."""
+    where it finds fewer inliers than that, or no model, go to MAGSAC++ at the same threshold, whose cost stays
+    bounded."""
     model, inliers = fundamental_ransac(x1, x2, cv2.FM_RANSAC, threshold_px, confidence, max_iterations)
-    if model is not None and inliers.mean() < min_share:
+    if model is None or inliers.mean() < min_share:
         model, _ = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, threshold_px)
         inliers = None if model is None else _within(model, x1, x2, threshold_px)
     for _ in range(rounds if model is not None else 0):
