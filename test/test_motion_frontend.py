@@ -122,6 +122,33 @@ class TestMotionFrontEnd:
         assert max(default[-6:]) == 0  # and let go after it parks
         assert min(flagged_pixels(10_000)[-6:]) > 3000  # flags held while the tracks live would keep it
 
+    def test_a_late_dense_mask_keeps_only_what_still_moves(self):
+        """The block's dense mask of frame 7, applied two frames after the block parked (frame 8): with
+        ``late_dense_px`` the frame's flow, which rides with the background there, drops it; without, it is carried
+        along, and so it is where the depth tests flagged it (their movers' flow follows the epipolar geometry).
+        Applied on time nothing changes."""
+        def dense_share(late_dense_px: float, depth: bool = False) -> tuple[float, float]:
+            config = MotionFrontEndConfig(sticky_frames=0, memory_frames=0, object_flow=None,
+                                          late_dense_px=late_dense_px)
+            front_end = MotionFrontEnd(config)
+            frames = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in textured_frames(11, stop=8)]
+            for frame in frames[:7]:
+                front_end.update(frame)
+            late = front_end.refit(front_end.observe(frames[7]))
+            on_time = block_truth(7)
+            front_end.apply(late)
+            shares = [float(front_end.moving[on_time].mean())]
+            for frame in frames[8:]:
+                front_end.observe(frame)
+            front_end.apply(replace(late, flagged=np.zeros(0, dtype=np.int64),
+                                    dense_depth=late.dense if depth else late.dense_depth))
+            return shares[0], float(front_end.moving.mean())
+
+        trimmed, kept = dense_share(0.3), dense_share(0.0)
+        assert trimmed[0] == kept[0] > 0.5  # on time: the block's dense mask, the same either way
+        assert kept[1] > 0.5 * trimmed[0] * block_truth(7).mean() and trimmed[1] < 0.2 * kept[1]
+        assert dense_share(0.3, depth=True)[1] == kept[1]
+
     def test_the_dense_flow_back_to_the_previous_frame_checks_the_tracks(self):
         def checked(dense_gap: int) -> list[float]:
             front_end = MotionFrontEnd(MotionFrontEndConfig(dense_gap=dense_gap))

@@ -37,7 +37,11 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
 
 The dense mask holds on for a frame where it goes on: of the last refit's dense mask, carried along the flow,
 the regions that touch this refit's are kept (hysteresis, as in Canny's edges: a mover's residual flickers
-around the threshold from frame to frame, a lone blob of noise is not repeated).
+around the threshold from frame to frame, a lone blob of noise is not repeated). A dense mask applied to a later
+frame than its own (a background refit a frame or more behind the camera) keeps the pixels its residual flagged
+only where that frame's backward flow still leaves the epipolar geometry of its tracks by ``late_dense_px``: the
+mask holds what moved between the two frames before, and a limb that stopped, or the background a mover uncovered,
+comes along with it. The pixels the depth tests flagged stay (their motion lies in the epipolar plane).
 
 Both are drawn at ``dense_width``. Their union is remembered for ``memory_frames`` frames: evidence that
 drops out (a looming car's tracks and flow, a small fast mover's flicker) is carried along the backward flow,
@@ -57,9 +61,10 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual
+from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual, sampson_pixels
 from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, pixel_grid, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
+from moseg_ros.core.robust import fundamental_polished
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
                                          behind_infinity, beyond_allowance, dense_parallax, guessed_camera_matrix,
                                          moving_tracks, nearer_than_road, pair_evidence, short_of_ground)
@@ -144,6 +149,9 @@ class MotionFrontEndConfig:
     # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
     # whole last mask, which flagged more static pixels for the same recall (docs/experiments.md).
     dense_hysteresis: bool = True
+    # A late dense mask keeps its residual's pixels where this frame's flow leaves its tracks' epipolar geometry by
+    # this much (dense pixels; the module's docstring). 0: keeps the whole mask.
+    late_dense_px: float = 0.3
     # Moving tracks closer to the image's border than this share of its width are not drawn: there KLT's window
     # and pyramid are clipped and what enters or leaves the view has half its support (KITTI 07's remaining
     # false hulls in its turn were there; docs/experiments.md).
@@ -349,14 +357,15 @@ class Observation:
 class Refit:
     """The motion evidence fitted on one observation: which tracks move (the track test of frame ``index``), and
     the dense residual mask of frame ``dense_index`` (``index`` when both were fitted on it; an earlier frame's
-    when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet); ``stages``
-    times the work done for frame ``index``."""
+    when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet) and the part of
+    it the depth tests flagged (``dense_depth``); ``stages`` times the work done for frame ``index``."""
 
     index: int
     flagged: np.ndarray
     dense: np.ndarray | None
     stages: dict[str, float]
     dense_index: int
+    dense_depth: np.ndarray | None = None
 
 
 class MotionFrontEnd:
@@ -415,9 +424,9 @@ class MotionFrontEnd:
         # The newest frame whose track pair has been fitted (a refit that skipped frames fits theirs first).
         self._fitted_through = -1
         # The last dense residual (its frame, EpipolarResidual), which corroborates the next track tests, and the
-        # last dense mask handed over (its frame, the mask after hysteresis).
+        # last dense mask handed over (its frame, the mask after hysteresis, the depth tests' part of it).
         self._evidence: tuple[int, EpipolarResidual] | None = None
-        self._published_dense: tuple[int, np.ndarray] | None = None
+        self._published_dense: tuple[int, np.ndarray, np.ndarray] | None = None
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -475,8 +484,8 @@ class MotionFrontEnd:
         stages = Stages()
         with stages("fit"):
             flagged = self._flagged(observation)
-        dense_index, dense = self._published_dense or (-1, None)
-        return Refit(observation.index, flagged, dense, stages.seconds, dense_index)
+        dense_index, dense, depth = self._published_dense or (-1, None, None)
+        return Refit(observation.index, flagged, dense, stages.seconds, dense_index, depth)
 
     def refit_dense(self, observation: Observation, tracks: Refit) -> Refit:
         """``tracks`` (this observation's ``refit_tracks``) with this observation's dense residual mask, whose
@@ -491,12 +500,14 @@ class MotionFrontEnd:
             with stages("dense_fit"):
                 evidence = self._counted(epipolar_residual(backward, forward, self.config.dense_baseline), backward)
         self._evidence = None if evidence is None else (observation.index, evidence)
-        dense = None
+        dense = depth = None
         if evidence is not None:
             with stages("dense_fit"):
-                dense = self._held(self._dense_mask(observation, evidence), observation)
-        self._published_dense = None if dense is None else (observation.index, dense)
-        return replace(tracks, dense=dense, dense_index=observation.index, stages={**tracks.stages, **stages.seconds})
+                moving, depth = self._dense_mask(observation, evidence)
+                dense = self._held(moving, observation)
+        self._published_dense = None if dense is None else (observation.index, dense, depth)
+        return replace(tracks, dense=dense, dense_index=observation.index, dense_depth=depth,
+                       stages={**tracks.stages, **stages.seconds})
 
     def apply(self, refit: Refit | None) -> np.ndarray:
         """Moving regions of the current frame from ``refit`` (this frame's or an older one; None: nothing)."""
@@ -515,7 +526,7 @@ class MotionFrontEnd:
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
-                moving |= self._carried(refit.dense, refit.dense_index)
+                moving |= self._confirmed(self._carried(refit.dense, refit.dense_index), refit)
             moving = self._remembered(moving, self._points.points[settled] * scale)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
@@ -560,6 +571,40 @@ class MotionFrontEnd:
             here = carried(mask, index, tuple(self._backward))
         self._carry = (index, self._index, here)
         return here
+
+    def _confirmed(self, here: np.ndarray, refit: Refit) -> np.ndarray:
+        """``here``, ``refit``'s dense mask carried to this frame, with the pixels of a late one (of an earlier frame)
+        kept where this frame's backward flow leaves its tracks' epipolar geometry by ``late_dense_px`` or the depth
+        tests flagged them (the module's docstring); the whole of it when this frame's geometry is not known."""
+        flow = self._flow_here()
+        if refit.dense_index >= self._index or self.config.late_dense_px <= 0 or flow is None or not here.any():
+            return here
+        fundamental = self._frame_fundamental(here.shape[1] / self._tracking_shape[1])
+        if fundamental is None:
+            return here
+        ys, xs = np.nonzero(here)
+        points = np.stack([xs, ys], axis=1).astype(np.float32)
+        still = sampson_pixels(fundamental, points, points + flow[ys, xs]) >= self.config.late_dense_px
+        kept = np.zeros_like(here)
+        kept[ys[still], xs[still]] = True
+        if refit.dense_depth is not None and refit.dense_depth.any():
+            kept |= here & carried(refit.dense_depth, refit.dense_index, tuple(self._backward))
+        return kept
+
+    def _frame_fundamental(self, scale: float) -> np.ndarray | None:
+        """F of this frame's pair of track positions (x_before^T F x_now = 0), at ``scale`` times the tracking
+        pixels; None without enough tracks seen in both or with too little motion to fix it."""
+        if len(self._frames) < 2:
+            return None
+        (before_ids, before), (now_ids, now) = self._frames[-2], self._frames[-1]
+        _, then, here = np.intersect1d(before_ids, now_ids, assume_unique=True, return_indices=True)
+        config = self.config.track_motion
+        if here.size < config.min_tracks:
+            return None
+        if np.median(np.linalg.norm(now[here] - before[then], axis=1)) < config.min_parallax_px:
+            return None
+        fundamental, _ = fundamental_polished(now[here] * scale, before[then] * scale, config.inlier_px * scale)
+        return fundamental
 
     def _held(self, dense: np.ndarray, observation: Observation) -> np.ndarray:
         """``dense`` with the regions of the last refit's dense mask, carried to this frame, that touch it
@@ -725,11 +770,14 @@ class MotionFrontEnd:
             return evidence
         return replace(evidence, residual=beyond_allowance(evidence.residual, flow, self.config.dense_allowance))
 
-    def _dense_mask(self, observation: Observation, evidence: EpipolarResidual) -> np.ndarray:
+    def _dense_mask(self, observation: Observation, evidence: EpipolarResidual) -> tuple[np.ndarray, np.ndarray]:
+        """(h, w) bool the dense mask of ``evidence`` (the module's docstring), and its part the depth tests flagged
+        (``_against_parallax``)."""
         backward, _ = observation.flows
         gray = observation.gray
+        depth = np.zeros(gray.shape, dtype=bool)
         if evidence.fundamental is None and evidence.homography is None:
-            return np.zeros(gray.shape, dtype=bool)
+            return depth, depth
         moving = (evidence.residual > evidence.threshold) & evidence.valid
         reliable = self._reliable(gray, backward) if self.config.min_texture > 0 else None
         if reliable is not None:
@@ -740,8 +788,9 @@ class MotionFrontEnd:
             parallax = dense_parallax(backward, evidence.valid, evidence.fundamental, K, self.config.track_motion,
                                       inlier_px=self.config.dense_baseline.ransac_threshold_px, max_rotation_deg=limit)
             if parallax is not None:
-                moving |= self._against_parallax(parallax, evidence.valid, reliable)
-        return moving
+                depth = self._against_parallax(parallax, evidence.valid, reliable)
+                moving |= depth
+        return moving, depth
 
     def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray,
                           reliable: np.ndarray | None = None) -> np.ndarray:
