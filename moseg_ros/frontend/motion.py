@@ -244,13 +244,15 @@ def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarr
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
-    """``mask`` (h, w) bool of frame ``index`` warped along the (frame, backward flow to the frame before)
-    pairs of ``backward`` whose frame is later, oldest first: where it lies in the last of them."""
+    """``mask`` (h, w) bool, or uint8 labels, of frame ``index`` warped along the (frame, backward flow to the frame
+    before) pairs of ``backward`` whose frame is later, oldest first: where it lies in the last of them (of the
+    same dtype)."""
+    labels = mask.astype(np.uint8, copy=False)
     for frame, flow in backward:
         if frame <= index:
             continue
-        mask = pulled_forward(mask.astype(np.uint8), flow, 0) > 0
-    return mask
+        labels = pulled_forward(labels, flow, 0)
+    return labels if mask.dtype == np.uint8 else labels > 0
 
 
 def pulled_forward(image: np.ndarray, flow: np.ndarray, border: int) -> np.ndarray:
@@ -262,6 +264,17 @@ def pulled_forward(image: np.ndarray, flow: np.ndarray, border: int) -> np.ndarr
 
 
 NO_EVIDENCE = np.uint8(255)
+# The label of the depth tests' pixels in ``dense_labels`` (1: the rest of the dense mask).
+DEPTH_LABEL = 2
+
+
+def dense_labels(refit: Refit) -> np.ndarray:
+    """(h, w) uint8 ``refit``'s dense mask as labels, carried along the flow as one: DEPTH_LABEL where the depth tests
+    flagged a pixel (``Refit.dense_depth``, a part of the mask), 1 elsewhere in it, 0 outside."""
+    labels = refit.dense.astype(np.uint8)
+    if refit.dense_depth is not None:
+        labels[refit.dense_depth] = DEPTH_LABEL
+    return labels
 
 
 def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | None, settled: np.ndarray,
@@ -526,7 +539,7 @@ class MotionFrontEnd:
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
-                moving |= self._confirmed(self._carried(refit.dense, refit.dense_index), refit)
+                moving |= self._confirmed(self._carried(dense_labels(refit), refit.dense_index), refit)
             moving = self._remembered(moving, self._points.points[settled] * scale)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
@@ -573,9 +586,11 @@ class MotionFrontEnd:
         return here
 
     def _confirmed(self, here: np.ndarray, refit: Refit) -> np.ndarray:
-        """``here``, ``refit``'s dense mask carried to this frame, with the pixels of a late one (of an earlier frame)
-        kept where this frame's backward flow leaves its tracks' epipolar geometry by ``late_dense_px`` or the depth
-        tests flagged them (the module's docstring); the whole of it when this frame's geometry is not known."""
+        """(h, w) bool: ``refit``'s dense mask, ``here`` as ``dense_labels`` carried to this frame, with the pixels of a
+        late one (of an earlier frame) kept where this frame's backward flow leaves its tracks' epipolar geometry by
+        ``late_dense_px`` or the depth tests flagged them (the module's docstring); the whole of it when this frame's
+        geometry is not known."""
+        depth, here = here == DEPTH_LABEL, here > 0
         flow = self._flow_here()
         if refit.dense_index >= self._index or self.config.late_dense_px <= 0 or flow is None or not here.any():
             return here
@@ -585,10 +600,8 @@ class MotionFrontEnd:
         ys, xs = np.nonzero(here)
         points = np.stack([xs, ys], axis=1).astype(np.float32)
         still = sampson_pixels(fundamental, points, points + flow[ys, xs]) >= self.config.late_dense_px
-        kept = np.zeros_like(here)
+        kept = depth.copy()
         kept[ys[still], xs[still]] = True
-        if refit.dense_depth is not None and refit.dense_depth.any():
-            kept |= here & carried(refit.dense_depth, refit.dense_index, tuple(self._backward))
         return kept
 
     def _frame_fundamental(self, scale: float) -> np.ndarray | None:
