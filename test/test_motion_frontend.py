@@ -149,6 +149,27 @@ class TestMotionFrontEnd:
         assert kept[1] > 0.5 * trimmed[0] * block_truth(7).mean() and trimmed[1] < 0.2 * kept[1]
         assert dense_share(0.3, depth=True)[1] == kept[1]
 
+    def test_a_late_dense_mask_of_a_planar_scene_is_tested_against_the_homography(self):
+        """The pan over a flat texture is a homography, and the F of its tracks is degenerate: one of its family
+        takes the sliding block in. The block's dense mask of frame 7, applied at frame 9 while it still slides,
+        is kept against the frame's homography (``dense_planar``); against that F it would be dropped."""
+        config = MotionFrontEndConfig(sticky_frames=0, memory_frames=0, object_flow=None)
+        front_end = MotionFrontEnd(config)
+        frames = [cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY) for frame in textured_frames(10, mover_speed_px=1)]
+        for frame in frames[:7]:
+            front_end.update(frame)
+        late = front_end.refit(front_end.observe(frames[7]))
+        for frame in frames[8:]:
+            front_end.observe(frame)
+        assert late.dense_planar and late.dense is not None
+
+        def kept(planar: bool) -> float:
+            front_end.apply(replace(late, flagged=np.zeros(0, dtype=np.int64), dense_planar=planar))
+            return float(front_end.moving[block_truth(9, speed=1)].mean())
+
+        assert kept(True) > 0.75
+        assert kept(False) < 0.05
+
     def test_the_dense_flow_back_to_the_previous_frame_checks_the_tracks(self):
         def checked(dense_gap: int) -> list[float]:
             front_end = MotionFrontEnd(MotionFrontEndConfig(dense_gap=dense_gap))

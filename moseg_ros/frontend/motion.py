@@ -39,7 +39,9 @@ The dense mask holds on for a frame where it goes on: of the last refit's dense 
 the regions that touch this refit's are kept (hysteresis, as in Canny's edges: a mover's residual flickers
 around the threshold from frame to frame, a lone blob of noise is not repeated). A dense mask applied to a later
 frame than its own (a background refit a frame or more behind the camera) keeps the pixels its residual flagged
-only where that frame's backward flow still leaves the epipolar geometry of its tracks by ``late_dense_px``: the
+only where that frame's backward flow still leaves the geometry of its tracks by ``late_dense_px`` (their
+epipolar geometry), or by ``late_dense_planar_px`` (their homography) when the refit's residual was against a
+homography (the F of a camera that only turns is degenerate and takes a slow mover's motion in: DAVIS cows): the
 mask holds what moved between the two frames before, and a limb that stopped, or the background a mover uncovered,
 comes along with it. The pixels the depth tests flagged stay (their motion lies in the epipolar plane).
 
@@ -61,10 +63,11 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from moseg_ros.core.baseline import BaselineConfig, EpipolarResidual, epipolar_residual, sampson_pixels
+from moseg_ros.core.baseline import (BaselineConfig, EpipolarResidual, epipolar_residual, homography_distance,
+                                    sampson_pixels)
 from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, pixel_grid, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
-from moseg_ros.core.robust import fundamental_polished
+from moseg_ros.core.robust import fundamental_polished, homography_ransac
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
                                          behind_infinity, beyond_allowance, dense_parallax, guessed_camera_matrix,
                                          moving_tracks, nearer_than_road, pair_evidence, short_of_ground)
@@ -152,6 +155,9 @@ class MotionFrontEndConfig:
     # A late dense mask keeps its residual's pixels where this frame's flow leaves its tracks' epipolar geometry by
     # this much (dense pixels; the module's docstring). 0: keeps the whole mask.
     late_dense_px: float = 0.3
+    # The same against the track pair's homography when the refit's residual was against one: its transfer error
+    # counts a pixel's whole displacement, the Sampson distance about half of its part across the epipolar line.
+    late_dense_planar_px: float = 0.6
     # Moving tracks closer to the image's border than this share of its width are not drawn: there KLT's window
     # and pyramid are clipped and what enters or leaves the view has half its support (KITTI 07's remaining
     # false hulls in its turn were there; docs/experiments.md).
@@ -371,7 +377,8 @@ class Refit:
     """The motion evidence fitted on one observation: which tracks move (the track test of frame ``index``), and
     the dense residual mask of frame ``dense_index`` (``index`` when both were fitted on it; an earlier frame's
     when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet) and the part of
-    it the depth tests flagged (``dense_depth``); ``stages`` times the work done for frame ``index``."""
+    it the depth tests flagged (``dense_depth``), and whether its residual was against a homography
+    (``dense_planar``); ``stages`` times the work done for frame ``index``."""
 
     index: int
     flagged: np.ndarray
@@ -379,6 +386,7 @@ class Refit:
     stages: dict[str, float]
     dense_index: int
     dense_depth: np.ndarray | None = None
+    dense_planar: bool = False
 
 
 class MotionFrontEnd:
@@ -439,7 +447,7 @@ class MotionFrontEnd:
         # The last dense residual (its frame, EpipolarResidual), which corroborates the next track tests, and the
         # last dense mask handed over (its frame, the mask after hysteresis, the depth tests' part of it).
         self._evidence: tuple[int, EpipolarResidual] | None = None
-        self._published_dense: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._published_dense: tuple[int, np.ndarray, np.ndarray, bool] | None = None
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -497,8 +505,8 @@ class MotionFrontEnd:
         stages = Stages()
         with stages("fit"):
             flagged = self._flagged(observation)
-        dense_index, dense, depth = self._published_dense or (-1, None, None)
-        return Refit(observation.index, flagged, dense, stages.seconds, dense_index, depth)
+        dense_index, dense, depth, planar = self._published_dense or (-1, None, None, False)
+        return Refit(observation.index, flagged, dense, stages.seconds, dense_index, depth, planar)
 
     def refit_dense(self, observation: Observation, tracks: Refit) -> Refit:
         """``tracks`` (this observation's ``refit_tracks``) with this observation's dense residual mask, whose
@@ -518,8 +526,9 @@ class MotionFrontEnd:
             with stages("dense_fit"):
                 moving, depth = self._dense_mask(observation, evidence)
                 dense = self._held(moving, observation)
-        self._published_dense = None if dense is None else (observation.index, dense, depth)
-        return replace(tracks, dense=dense, dense_index=observation.index, dense_depth=depth,
+        planar = evidence is not None and evidence.homography is not None
+        self._published_dense = None if dense is None else (observation.index, dense, depth, planar)
+        return replace(tracks, dense=dense, dense_index=observation.index, dense_depth=depth, dense_planar=planar,
                        stages={**tracks.stages, **stages.seconds})
 
     def apply(self, refit: Refit | None) -> np.ndarray:
@@ -586,27 +595,31 @@ class MotionFrontEnd:
         return here
 
     def _confirmed(self, here: np.ndarray, refit: Refit) -> np.ndarray:
-        """(h, w) bool: ``refit``'s dense mask, ``here`` as ``dense_labels`` carried to this frame, with the pixels of a
-        late one (of an earlier frame) kept where this frame's backward flow leaves its tracks' epipolar geometry by
-        ``late_dense_px`` or the depth tests flagged them (the module's docstring); the whole of it when this frame's
-        geometry is not known."""
+        """(h, w) bool: ``refit``'s dense mask, ``here`` as ``dense_labels`` carried to this frame, with the pixels
+        of a late one (of an earlier frame) kept where this frame's backward flow leaves its tracks' geometry by
+        ``late_dense_px`` (``late_dense_planar_px`` from their homography) or the depth tests flagged them (the
+        module's docstring); the whole of it when this frame's geometry is not known."""
         depth, here = here == DEPTH_LABEL, here > 0
         flow = self._flow_here()
         if refit.dense_index >= self._index or self.config.late_dense_px <= 0 or flow is None or not here.any():
             return here
-        fundamental = self._frame_fundamental(here.shape[1] / self._tracking_shape[1])
-        if fundamental is None:
-            return here
         ys, xs = np.nonzero(here)
         points = np.stack([xs, ys], axis=1).astype(np.float32)
-        still = sampson_pixels(fundamental, points, points + flow[ys, xs]) >= self.config.late_dense_px
+        distance = self._frame_distance(points, points + flow[ys, xs], refit.dense_planar,
+                                        here.shape[1] / self._tracking_shape[1])
+        if distance is None:
+            return here
+        still = distance >= (self.config.late_dense_planar_px if refit.dense_planar else self.config.late_dense_px)
         kept = depth.copy()
         kept[ys[still], xs[still]] = True
         return kept
 
-    def _frame_fundamental(self, scale: float) -> np.ndarray | None:
-        """F of this frame's pair of track positions (x_before^T F x_now = 0), at ``scale`` times the tracking
-        pixels; None without enough tracks seen in both or with too little motion to fix it."""
+    def _frame_distance(self, points: np.ndarray, matches: np.ndarray, planar: bool,
+                        scale: float) -> np.ndarray | None:
+        """(N,) distance in pixels of N correspondences of this frame ((N, 2) ``points`` here, ``matches`` in the
+        frame before, at ``scale`` times the tracking pixels) from the geometry of the frame's pair of track
+        positions: the transfer error of their homography when ``planar``, else the Sampson distance of their F.
+        None without enough tracks seen in both, with too little motion to fix it, or with no model."""
         if len(self._frames) < 2:
             return None
         (before_ids, before), (now_ids, now) = self._frames[-2], self._frames[-1]
@@ -616,8 +629,12 @@ class MotionFrontEnd:
             return None
         if np.median(np.linalg.norm(now[here] - before[then], axis=1)) < config.min_parallax_px:
             return None
-        fundamental, _ = fundamental_polished(now[here] * scale, before[then] * scale, config.inlier_px * scale)
-        return fundamental
+        now, before, inlier_px = now[here] * scale, before[then] * scale, config.inlier_px * scale
+        if planar:
+            homography, _ = homography_ransac(now, before, cv2.RANSAC, inlier_px)
+            return None if homography is None else homography_distance(homography, points, matches)
+        fundamental, _ = fundamental_polished(now, before, inlier_px)
+        return None if fundamental is None else sampson_pixels(fundamental, points, matches)
 
     def _held(self, dense: np.ndarray, observation: Observation) -> np.ndarray:
         """``dense`` with the regions of the last refit's dense mask, carried to this frame, that touch it
