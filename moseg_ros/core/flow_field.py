@@ -50,8 +50,9 @@ def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndar
     h, w = forward.shape[:2]
     grid = pixel_grid(h, w)
     landing = grid + forward
-    back_at_landing = cv2.remap(backward, landing[..., 0], landing[..., 1], cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_CONSTANT, borderValue=(1e3, 1e3))
+    # The (H, W, 2) map whole: its channels apart are strided views that OpenCV would copy first.
+    back_at_landing = cv2.remap(backward, landing, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                                borderValue=(1e3, 1e3))
     round_trip = forward + back_at_landing
     return np.hypot(round_trip[..., 0], round_trip[..., 1])
 
