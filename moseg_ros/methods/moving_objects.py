@@ -23,9 +23,8 @@ that long at most for the whole refit of its own observation (age 0 when it come
 long as the camera leaves before its next frame (``FrameInput.next_frame_at``) when a refit fits in it, or for the
 track half alone when only that fits. The stream's first decisions, from the second frame after a start or a reset
 to the first with a pair for the track test (``gap`` frames apart), always wait for their own refits (the last of
-them for its track half): before them
-there is nothing, or only one frame pair's dense evidence, to apply. "inline" refits every frame on the frame path
-(deterministic: the offline tools).
+them for its track half): before them there is nothing, or only one frame pair's dense evidence, to apply. "inline"
+refits every frame on the frame path (deterministic: the offline tools).
 """
 
 from __future__ import annotations
