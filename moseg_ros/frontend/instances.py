@@ -63,7 +63,10 @@ def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cu
     Returns:
         (n_prev, n_cur) float IoU of region i+1 of ``previous`` with region j+1 of ``current``.
     """
-    joint = np.bincount(previous.ravel().astype(np.int64) * (n_cur + 1) + current.ravel(),
+    # Only the pixels of some region count (the joint histogram's [0, 0], the shared background, is never used):
+    # regions cover a few per cent of a frame.
+    labelled = np.flatnonzero((previous.ravel() > 0) | (current.ravel() > 0))
+    joint = np.bincount(previous.ravel()[labelled].astype(np.int64) * (n_cur + 1) + current.ravel()[labelled],
                         minlength=(n_prev + 1) * (n_cur + 1)).reshape(n_prev + 1, n_cur + 1)
     inter = joint[1:, 1:].astype(np.float64)
     union = joint[1:, :].sum(1)[:, None] + joint[:, 1:].sum(0)[None, :] - inter
