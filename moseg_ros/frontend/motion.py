@@ -445,9 +445,9 @@ class MotionFrontEnd:
         # The newest frame whose track pair has been fitted (a refit that skipped frames fits theirs first).
         self._fitted_through = -1
         # The last dense residual (its frame, EpipolarResidual), which corroborates the next track tests, and the
-        # last dense mask handed over (its frame, the mask after hysteresis, the depth tests' part of it).
+        # last refit with a dense mask, whose dense part the next track tests' refits carry on.
         self._evidence: tuple[int, EpipolarResidual] | None = None
-        self._published_dense: tuple[int, np.ndarray, np.ndarray, bool] | None = None
+        self._published_dense: Refit | None = None
 
     def update(self, gray: np.ndarray, camera_matrix: np.ndarray | None = None) -> np.ndarray:
         """Take the next frame ((H, W) uint8, tracked at this size) and, when calibrated, its (3, 3) camera
@@ -505,8 +505,9 @@ class MotionFrontEnd:
         stages = Stages()
         with stages("fit"):
             flagged = self._flagged(observation)
-        dense_index, dense, depth, planar = self._published_dense or (-1, None, None, False)
-        return Refit(observation.index, flagged, dense, stages.seconds, dense_index, depth, planar)
+        if self._published_dense is None:
+            return Refit(observation.index, flagged, None, stages.seconds, -1)
+        return replace(self._published_dense, index=observation.index, flagged=flagged, stages=stages.seconds)
 
     def refit_dense(self, observation: Observation, tracks: Refit) -> Refit:
         """``tracks`` (this observation's ``refit_tracks``) with this observation's dense residual mask, whose
@@ -527,9 +528,10 @@ class MotionFrontEnd:
                 moving, depth = self._dense_mask(observation, evidence)
                 dense = self._held(moving, observation)
         planar = evidence is not None and evidence.homography is not None
-        self._published_dense = None if dense is None else (observation.index, dense, depth, planar)
-        return replace(tracks, dense=dense, dense_index=observation.index, dense_depth=depth, dense_planar=planar,
-                       stages={**tracks.stages, **stages.seconds})
+        refit = replace(tracks, dense=dense, dense_index=observation.index, dense_depth=depth, dense_planar=planar,
+                        stages={**tracks.stages, **stages.seconds})
+        self._published_dense = None if dense is None else refit
+        return refit
 
     def apply(self, refit: Refit | None) -> np.ndarray:
         """Moving regions of the current frame from ``refit`` (this frame's or an older one; None: nothing)."""
