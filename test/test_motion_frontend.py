@@ -12,7 +12,7 @@ from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
 from moseg_ros.frontend.motion import (NO_EVIDENCE, MotionFrontEnd, MotionFrontEndConfig, Observation, carried,
-                                      dense_near, hull_mask, linked_groups, remembered, touching)
+                                      dense_near, hull_mask, linked_groups, remembered, resized_to_width, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -20,6 +20,28 @@ def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3)
     y = height // 6 + speed * index
     truth[y:y + height // 3, width // 4:width // 4 + width // 8] = True
     return truth
+
+
+class TestResizedToWidth:
+    def test_shape_and_type_of_a_kitti_frame(self):
+        gray = np.random.default_rng(0).integers(0, 256, (370, 1226)).astype(np.uint8)
+        small = resized_to_width(gray, 640)
+        assert small.shape == (193, 640) and small.dtype == np.uint8
+
+    def test_a_frame_not_larger_is_returned_as_is(self):
+        gray = np.zeros((100, 300), np.uint8)
+        assert resized_to_width(gray, 640) is gray
+
+    def test_four_times_smaller_is_two_pyramid_halvings(self):
+        gray = np.random.default_rng(1).integers(0, 256, (400, 1600)).astype(np.uint8)
+        assert np.array_equal(resized_to_width(gray, 400), cv2.pyrDown(cv2.pyrDown(gray)))
+
+    def test_smooth_content_matches_the_area_average(self):
+        """A smooth frame shrunk by the pyramid and a linear step reads as INTER_AREA's average does."""
+        y, x = np.mgrid[0:370, 0:1226]
+        gray = (127 + 60 * np.sin(x / 40.0) * np.cos(y / 30.0)).astype(np.uint8)
+        area = cv2.resize(gray, (640, 193), interpolation=cv2.INTER_AREA).astype(float)
+        assert np.abs(resized_to_width(gray, 640).astype(float) - area).mean() < 1.0
 
 
 class TestLinkedGroups:
