@@ -305,6 +305,37 @@ class TestDenseCheirality:
         assert dense[is_car].mean() < 0.1
 
 
+class TestDenseCheiralityAnchor:
+    """A smooth region behind infinity counts only where it reaches pixels whose flow is reliable: a followed
+    car's smooth body, filled from its textured rim, is in the dense mask; a patch of the same flow in the middle
+    of a blank sky, farther than ``texture_reach`` from any texture (DIS's flow there is interpolation), is not."""
+
+    @staticmethod
+    def _refit(**settings):
+        backward, is_car, K = pan_follow_flow(degrees=0.5)
+        gray = np.random.default_rng(0).integers(0, 255, is_car.shape).astype(np.uint8)
+        body = np.zeros_like(is_car)
+        body[53:87, 133:197] = True  # the car's smooth body inside a 3-pixel textured rim
+        gray[body] = 100
+        sky = np.zeros_like(is_car)
+        sky[5:115, 215:315] = True
+        gray[sky] = 200
+        patch = np.zeros_like(is_car)
+        patch[40:80, 245:285] = True  # 30 px or more from the sky's edge: beyond the reach
+        backward[patch] = 0.0
+        config = MotionFrontEndConfig(dense_width=is_car.shape[1], **settings)
+        observation = Observation(1, K, (backward, -backward), gray, is_car.shape)
+        return MotionFrontEnd(config).refit(observation).dense, is_car, patch
+
+    def test_the_followed_smooth_body_is_in_and_the_sky_patch_is_not(self):
+        dense, is_car, patch = self._refit()
+        assert dense[is_car].mean() > 0.9 and dense[patch].mean() < 0.05
+
+    def test_without_the_texture_check_the_sky_patch_is_in(self):
+        dense, is_car, patch = self._refit(min_texture=0.0)
+        assert dense[is_car].mean() > 0.9 and dense[patch].mean() > 0.9
+
+
 class TestRemembered:
     """The moving evidence of the frames before, carried along the flow while fresh evidence drops out."""
 

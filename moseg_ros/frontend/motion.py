@@ -31,7 +31,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   texture where the flow is at most ``smooth_max_flow`` (DIS carries a small motion from textured edges into
   the smooth body of an animal or a car, but not a large one: the near road of a driving camera), and pixels
   behind infinity by more than ``dense_cheir_px`` (core/track_motion.behind_infinity, textured or not: the
-  smooth body of an object the camera follows has a flow of about zero, which its few tracks cannot fill), and,
+  smooth body of an object the camera follows has a flow of about zero, which its few tracks cannot fill; a
+  smooth region only where it joins such pixels the flow can be trusted at, since far from any texture DIS's
+  flow is its smoothing's guess, and a blank sky came out behind infinity), and,
   with ``dense_footing``, pixels nearer than the road under them (core/track_motion.nearer_than_road: the
   footing test of the tracks on every pixel, for the oncoming car).
 
@@ -839,13 +841,17 @@ class MotionFrontEnd:
 
     def _against_parallax(self, parallax: DenseParallax, valid: np.ndarray,
                           reliable: np.ndarray | None = None) -> np.ndarray:
-        """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``) or, of the
-        ``reliable`` ones (``_reliable``; None: all), nearer than the road under them (``dense_footing``)."""
+        """(h, w) bool: the pixels the dense parallax puts behind infinity (``dense_cheir_px``; in regions that
+        reach ``reliable`` ones, ``_reliable``, None: all) or, of the reliable ones, nearer than the road under them
+        (``dense_footing``)."""
         moving = np.zeros(valid.shape, dtype=bool)
         if self.config.dense_cheir_px > 0:
-            # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there.
-            moving |= behind_infinity(parallax, valid, self.config.track_motion,
-                                      threshold_px=self.config.dense_cheir_px, guarded=True)
+            # Not gated by texture: a followed object's body is often smooth, and its flow is ~0 there. But only
+            # the regions that reach pixels whose flow is reliable: in the middle of a blank sky DIS's flow is
+            # interpolated, and a patch of it came out behind infinity (docs/experiments.md).
+            behind = behind_infinity(parallax, valid, self.config.track_motion,
+                                     threshold_px=self.config.dense_cheir_px, guarded=True)
+            moving |= behind if reliable is None else touching(behind, behind & reliable)
         near = (nearer_than_road(parallax, valid, self.config.track_motion, excess_px=self.config.dense_footing_px,
                                  clearance=self.config.dense_footing_clearance)
                 if self.config.dense_footing else None)
