@@ -565,7 +565,7 @@ class MotionFrontEnd:
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
-                moving |= self._confirmed(self._carried(dense_labels(refit), refit.dense_index), refit)
+                moving |= self._confirmed(self._carried(refit), refit)
             moving = self._remembered(moving, self._points.points[settled] * scale)
             self.moving = moving
             return self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px))
@@ -599,15 +599,16 @@ class MotionFrontEnd:
         """The current frame's dense flow back to the frame before, None when it has none."""
         return self._backward[-1][1] if self._backward and self._backward[-1][0] == self._index else None
 
-    def _carried(self, mask: np.ndarray, index: int) -> np.ndarray:
-        """``mask`` of frame ``index`` warped to the current frame along the backward flows since: one warp a
-        frame while the same refit is applied frame after frame (the last frame's carried mask goes one flow on,
-        the same steps as warping from ``index`` each time)."""
+    def _carried(self, refit: Refit) -> np.ndarray:
+        """``refit``'s ``dense_labels`` warped from its frame to the current one along the backward flows since:
+        one warp a frame while the same refit is applied frame after frame (the last frame's carried labels go one
+        flow on, the same steps as warping from the refit's frame each time, and the labels are not drawn again)."""
+        index = refit.dense_index
         last, flow = self._carry, self._flow_here()
         if last is not None and last[:2] == (index, self._index - 1) and flow is not None:
             here = carried(last[2], self._index - 1, ((self._index, flow),))
         else:
-            here = carried(mask, index, tuple(self._backward))
+            here = carried(dense_labels(refit), index, tuple(self._backward))
         self._carry = (index, self._index, here)
         return here
 
