@@ -12,7 +12,8 @@ from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
 from moseg_ros.frontend.motion import (NO_EVIDENCE, MotionFrontEnd, MotionFrontEndConfig, Observation, carried,
-                                      dense_near, hull_mask, linked_groups, remembered, resized_to_width, touching)
+                                      dense_near, hull_mask, linked_groups, reach_triangles, remembered,
+                                      resized_to_width, touching)
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -90,6 +91,40 @@ class TestHullMask:
         static = np.array([[45, 45], [49, 49]], dtype=np.float32)
         mask = hull_mask(points, (50, 50), 25, 4, static, purity=0.5)
         assert mask[40:, 40:].all() and mask.sum() == 10 * 10
+
+
+    # An L of points 10 px apart: the convex hull bridges the bay (x, y in 30..50) that the reach leaves empty.
+    ELL = np.array([[x, y] for x in range(10, 51, 10) for y in range(10, 51, 10) if x <= 20 or y <= 20],
+                   dtype=np.float32)
+
+    def test_a_reach_leaves_the_bay_of_an_outline_that_the_convex_hull_bridges(self):
+        convex = hull_mask(self.ELL, (60, 60), 15, 4)
+        reach = hull_mask(self.ELL, (60, 60), 15, 4, reach_px=15)
+        ys, xs = np.mgrid[0:60, 0:60]
+        bay = (xs >= 27) & (ys >= 27) & (xs + ys <= 65)  # inside the hull's diagonal side, off the L and its corner
+        assert convex[bay].all() and not reach[bay].any()
+        assert reach[10:51, 10:21].all() and reach[10:21, 10:51].all()
+
+    def test_a_reach_shorter_than_every_side_draws_nothing_and_a_line_its_convex_hull(self):
+        assert not hull_mask(self.ELL, (60, 60), 15, 4, reach_px=5).any()
+        line = np.array([[10, 10], [20, 10], [30, 10], [40, 10]], dtype=np.float32)
+        assert hull_mask(line, (60, 60), 15, 4, reach_px=15).sum() == hull_mask(line, (60, 60), 15, 4).sum() == 31
+
+
+class TestReachTriangles:
+    def test_shape_and_every_triangle_of_a_grid_within_reach(self):
+        grid = np.array([[x, y] for x in (0, 10, 20) for y in (0, 10, 20)], dtype=np.float64)
+        triangles = reach_triangles(grid, 15.0)
+        assert triangles.shape == (8, 3, 2)  # two a cell: sides 10, 10 and 14.1
+        assert reach_triangles(grid, 12.0).shape == (0, 3, 2)
+
+    def test_the_long_sides_of_a_far_point_are_left_out(self):
+        points = np.array([[0, 0], [10, 0], [0, 10], [10, 10], [60, 5]], dtype=np.float64)
+        triangles = reach_triangles(points, 15.0)
+        assert len(triangles) == 2 and triangles[..., 0].max() == 10
+
+    def test_collinear_points_span_no_triangle(self):
+        assert reach_triangles(np.array([[0, 0], [1, 1], [2, 2], [3, 3]], dtype=np.float64), 5.0) is None
 
 
 class TestMotionFrontEnd:

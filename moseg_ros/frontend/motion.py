@@ -20,8 +20,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   forever); a refit that comes several frames after the one before (a background refit slower than the camera)
   counts its flags for each window it stands in for, so that a slow refit's flags stick as soon as every
   frame's refits' would. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
-  group of ``min_group`` or more fills its convex hull, unless the tracks that lived through the whole window
-  unflagged make up more than 1 - ``hull_purity`` of the tracks inside it; flagged tracks within
+  group of ``min_group`` or more fills its hull (the triangles between its tracks no longer than ``hull_reach``
+  times the link distance), unless the tracks that lived through the whole window unflagged make up more than
+  1 - ``hull_purity`` of the tracks inside its convex hull; flagged tracks within
   ``track_border`` of the image's border are not drawn. The flow view then grows each hull
   over the pixels whose dense flow follows the group's own flow model, and trims what follows the
   background's around it (``object_flow``, core/object_flow.py).
@@ -63,7 +64,7 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from moseg_ros.core.baseline import (BaselineConfig, EpipolarResidual, epipolar_residual, homography_distance,
                                     sampson_pixels)
@@ -102,6 +103,11 @@ class MotionFrontEndConfig:
     # drifting tracks in foliage), not an object. Young tracks do not count: a moving car keeps gaining new
     # ones that the test has not flagged yet.
     hull_purity: float = 0.5
+    # A group of four or more fills only the triangles of its tracks' Delaunay triangulation whose sides are at most
+    # this many times the link distance, not its convex hull, which bridges the bays between its tracks: the gap
+    # between a van and the few tracks flagged in a tree beside it, water around a swan (docs/experiments.md).
+    # 0: the convex hull.
+    hull_reach: float = 1.5
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
@@ -219,9 +225,10 @@ def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndar
 
 
 def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
-              static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None) -> np.ndarray:
-    """Link points closer than ``link_px``; fill the convex hull of every group of ``min_group`` or more
-    whose points are at least ``purity`` of its points plus the ``static`` points inside its hull.
+              static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None,
+              reach_px: float = 0.0) -> np.ndarray:
+    """Link points closer than ``link_px``; fill the hull of every group of ``min_group`` or more whose points
+    are at least ``purity`` of its points plus the ``static`` points inside its convex hull.
 
     Args:
         points: (N, 2) positions (x, y).
@@ -231,6 +238,8 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
         static: optional (S, 2) positions of points known not to move; a hull they crowd is not drawn.
         purity: the smallest share of a hull's points that must be ``points`` (0: every group is drawn).
         group: optional (N,) ``linked_groups(points, link_px, min_group)``, when the caller has it already.
+        reach_px: > 0: a group's hull is the union of the triangles of its points' Delaunay triangulation whose
+            sides are at most this long (``reach_triangles``: a concave outline); 0: its convex hull.
 
     Returns:
         (H, W) bool mask.
@@ -240,7 +249,8 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
     sizes = np.bincount(group[group >= 0])
     static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
     for g in np.flatnonzero(sizes >= min_group):
-        hull = cv2.convexHull(np.rint(points[group == g]).astype(np.int32))
+        members = points[group == g]
+        hull = cv2.convexHull(np.rint(members).astype(np.int32))
         x0, y0, w, h = cv2.boundingRect(hull)
         local = np.zeros((h, w), dtype=np.uint8)
         cv2.fillConvexPoly(local, hull - np.array([x0, y0], dtype=np.int32), 1)
@@ -249,9 +259,26 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
             near = near[(near[:, 0] >= 0) & (near[:, 0] < w) & (near[:, 1] >= 0) & (near[:, 1] < h)]
             if sizes[g] < purity * (sizes[g] + local[near[:, 1], near[:, 0]].sum()):
                 continue
+        triangles = reach_triangles(members, reach_px) if reach_px > 0 and len(members) > 3 else None
+        if triangles is not None:
+            local[:] = 0
+            if len(triangles):
+                cv2.fillPoly(local, list(np.rint(triangles - [x0, y0]).astype(np.int32)), 1)
         view = mask[y0:y0 + h, x0:x0 + w]
         view |= local[:view.shape[0], :view.shape[1]]
     return mask.astype(bool)
+
+
+def reach_triangles(points: np.ndarray, reach_px: float) -> np.ndarray | None:
+    """(T, 3, 2) the triangles of the (N, 2) ``points``' Delaunay triangulation (scipy.spatial.Delaunay) whose
+    sides are all at most ``reach_px`` long: the alpha shape's region, which follows an outline's bays where the
+    convex hull bridges them. None when the points span no triangle (collinear, or fewer than three distinct)."""
+    try:
+        corners = points[Delaunay(points).simplices]
+    except QhullError:
+        return None
+    sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
+    return corners[sides.max(axis=1) <= reach_px]
 
 
 def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarray:
@@ -561,7 +588,7 @@ class MotionFrontEnd:
             points = self.moving_track_points * scale
             group = linked_groups(points, link_px, self.config.min_group)
             moving = hull_mask(points, small, link_px, self.config.min_group, self._points.points[settled] * scale,
-                               self.config.hull_purity, group)
+                               self.config.hull_purity, group, self.config.hull_reach * link_px)
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
