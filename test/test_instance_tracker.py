@@ -85,6 +85,18 @@ class TestInstanceTracker:
         tracker.reset()
         assert tracker.update(boxes(self.SHAPE, (10, 10, 20, 20))).max() == 1 and tracker.ages == {1: 1}
 
+    def test_the_flow_keeps_the_id_of_a_region_that_moved_off_its_old_place(self):
+        first_frame = boxes(self.SHAPE, (10, 5, 20, 20))
+        moved = boxes(self.SHAPE, (10, 35, 20, 20))  # 30 px right: no overlap with where it was
+        flow = np.zeros((*self.SHAPE, 2), dtype=np.float32)
+        flow[..., 0] = -30  # this frame -> the one before
+        tracker = InstanceTracker()
+        first = tracker.update(first_frame)
+        assert tracker.update(moved, flow)[20, 45] == first[20, 15] and tracker.ages == {int(first[20, 15]): 2}
+        blind = InstanceTracker()
+        blind.update(first_frame)
+        assert blind.update(moved)[20, 45] != first[20, 15]
+
     def test_nothing_in_nothing_out(self):
         tracker = InstanceTracker()
         labels = tracker.update(np.zeros(self.SHAPE, dtype=np.int32))

@@ -11,9 +11,11 @@ import pytest
 from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
 from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
 from moseg_ros.core.flow_field import away_from_border
-from moseg_ros.frontend.motion import (NO_EVIDENCE, MotionFrontEnd, MotionFrontEndConfig, Observation, carried,
-                                      dense_near, hull_mask, linked_groups, reach_triangles, remembered,
+from moseg_ros.frontend.flow import DenseFlow
+from moseg_ros.frontend.motion import (NO_EVIDENCE, Coast, MotionFrontEnd, MotionFrontEndConfig, Observation, carried,
+                                      coasted, dense_near, hull_mask, linked_groups, reach_triangles, remembered,
                                       resized_to_width, touching)
+from moseg_ros.synth.scenarios import render_sequence
 
 
 def block_truth(index: int, height: int = 188, width: int = 621, speed: int = 3) -> np.ndarray:
@@ -423,6 +425,100 @@ class TestRemembered:
         front_end._memory = (0, np.zeros(self.SHAPE, dtype=np.uint8))
         front_end.reset()
         assert front_end._memory is None
+
+
+class TestCoasted:
+    """Lasting regions whose evidence drops out, carried by their tracks' similarity for a few frames."""
+
+    SHAPE = (60, 80)
+
+    @classmethod
+    def _block(cls, x0: int, y0: int = 20, size: int = 10) -> np.ndarray:
+        mask = np.zeros(cls.SHAPE, dtype=bool)
+        mask[y0:y0 + size, x0:x0 + size] = True
+        return mask
+
+    @classmethod
+    def _tracks_on(cls, x0: int, y0: int = 20, size: int = 10) -> np.ndarray:
+        return np.array([[x0 + dx, y0 + dy] for dx in (2, 5, 8) for dy in (2, 5, 8)], dtype=np.float32)
+
+    def _coast(self, moving, lasting, before, now, settled=np.zeros((0, 2)), frames=4, labels=None, evidence=None):
+        labels = self._block(10).astype(np.int32) * 7 if labels is None else labels
+        evidence = labels > 0 if evidence is None else evidence
+        return coasted(moving, labels, evidence, lasting, before, now, settled, frames, 4, 0.7, 3)
+
+    def test_shape_and_dtype(self):
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        out, coasts = self._coast(nothing, {}, self._tracks_on(10), self._tracks_on(10))
+        assert out.shape == self.SHAPE and out.dtype == bool and not out.any() and coasts == {}
+
+    def test_a_region_whose_evidence_drops_out_is_drawn_where_its_tracks_went(self):
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        out, coasts = self._coast(nothing, {7: Coast()}, self._tracks_on(10), self._tracks_on(10) + [6, 3])
+        np.testing.assert_array_equal(out, self._block(16, 23))
+        assert coasts[7].frames == 1
+        np.testing.assert_allclose(coasts[7].motion, [[1, 0, 6], [0, 1, 3]], atol=1e-6)
+
+    def test_a_looming_region_grows_with_its_tracks(self):
+        before = self._tracks_on(10)
+        centre = before.mean(axis=0)
+        out, _ = self._coast(np.zeros(self.SHAPE, dtype=bool), {7: Coast()}, before, centre + 1.5 * (before - centre))
+        assert 1.8 < out.sum() / 100 < 2.7 and out[self._block(10)].all()
+
+    def test_without_tracks_it_moves_as_it_moved_last(self):
+        last = np.array([[1, 0, 5], [0, 1, 0]], dtype=np.float64)
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        out, coasts = self._coast(nothing, {7: Coast(1, last)}, np.zeros((0, 2)), np.zeros((0, 2)))
+        np.testing.assert_array_equal(out, self._block(15))
+        assert coasts[7].frames == 2
+
+    def test_it_goes_on_from_where_it_went_and_stops_after_the_frames_asked(self):
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        step = np.array([[1, 0, 5], [0, 1, 0]], dtype=np.float64)
+        coast = Coast(1, step, self._block(15))
+        out, coasts = self._coast(nothing, {7: coast}, np.zeros((0, 2)), np.zeros((0, 2)))
+        np.testing.assert_array_equal(out, self._block(20))  # from its moved evidence, not the region drawn
+        out, coasts = self._coast(nothing, {7: Coast(4, step, self._block(15))}, np.zeros((0, 2)), np.zeros((0, 2)))
+        assert not out.any() and coasts[7].frames == 4
+
+    def test_evidence_that_covers_it_stops_the_coasting(self):
+        fresh = self._block(16, 23)
+        out, coasts = self._coast(fresh, {7: Coast(2, None, None)}, self._tracks_on(10), self._tracks_on(10) + [6, 3])
+        np.testing.assert_array_equal(out, fresh)
+        assert coasts[7].frames == 0 and coasts[7].shape is None
+
+    def test_static_tracks_inside_veto_it(self):
+        settled = self._tracks_on(16, 23)[:3]
+        out, coasts = self._coast(np.zeros(self.SHAPE, dtype=bool), {7: Coast()}, self._tracks_on(10),
+                                  self._tracks_on(10) + [6, 3], settled)
+        assert not out.any() and coasts[7].frames == 0
+
+    def test_only_its_evidence_coasts_and_only_tracks_on_it_move_it(self):
+        labels = (self._block(10) | self._block(30)).astype(np.int32) * 7  # drawn wider than its evidence
+        on_it = self._tracks_on(10) + [6, 3]
+        beside = self._tracks_on(30)  # the background's tracks in the drawn region do not move
+        out, _ = self._coast(np.zeros(self.SHAPE, dtype=bool), {7: Coast()},
+                             np.concatenate([self._tracks_on(10), self._tracks_on(30)]),
+                             np.concatenate([on_it, beside]), labels=labels, evidence=self._block(10))
+        np.testing.assert_array_equal(out, self._block(16, 23))
+
+
+def test_the_front_end_coasts_a_passing_car_whose_evidence_drops_out():
+    """The synthetic oncoming car as it passes the camera (frames 13-15): its tracks die of its growth and its flow
+    fails the forward-backward check; coasting keeps it."""
+    sequence = render_sequence("oncoming", seed=0, n_frames=16, width=621, height=188)
+    car = next(obj for obj, name in sequence.object_names.items() if name.startswith("car_oncoming"))
+
+    def covered(config: MotionFrontEndConfig) -> list[float]:
+        front_end, shares = MotionFrontEnd(config, DenseFlow("balanced")), []
+        for frame in sequence.frames:
+            labels = front_end.update(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
+            truth = frame.instances == car
+            shares.append(float((labels[truth] > 0).mean()))
+        return shares
+
+    coasting, without = covered(MotionFrontEndConfig()), covered(MotionFrontEndConfig(coast_frames=0))
+    assert np.mean(coasting[13:]) > 0.4 and np.mean(without[13:]) < 0.2, (coasting[13:], without[13:])
 
 
 class TestDenseFooting:

@@ -68,16 +68,17 @@ def test_the_pedestrian_walking_away_is_caught_at_kitti_size_by_the_strong_short
 
 
 def test_upstream_instances_hold_the_oncoming_car_as_its_evidence_drops_out():
-    """The oncoming car (seed 1) near the image's corner: its tracks and flow drop out, its instance id does
-    not. With the renderer's instances the default method flags it in more frames than its own mask covers
-    (measured: 10 of 13 against 7), and the hold is what brings them (8 without it)."""
+    """The oncoming car of the default street (seed 0) as it passes the image's corner: its tracks and flow drop
+    out, its instance id does not. With the renderer's instances the default method flags it in more frames than
+    its own mask covers (measured: 13 of 13 against 11, the front-end's coasting included), and the hold is what
+    brings them (11 without it)."""
     common = dict(n_frames=16, width=621)
-    alone = score_scene("oncoming", 1, PipelineConfig(), instances=False, **common)["car_oncoming"]
-    held = score_scene("oncoming", 1, PipelineConfig(), instances=True, **common)["car_oncoming"]
-    unheld = score_scene("oncoming", 1, PipelineConfig(instance_hold_fraction=0.4), instances=True,
+    alone = score_scene("default", 0, PipelineConfig(), instances=False, **common)["car_oncoming"]
+    held = score_scene("default", 0, PipelineConfig(), instances=True, **common)["car_oncoming"]
+    unheld = score_scene("default", 0, PipelineConfig(instance_hold_fraction=0.4), instances=True,
                          **common)["car_oncoming"]
     assert held["seen"] == alone["seen"] == 13
-    assert held["flagged"] >= 9 and held["flagged"] > unheld["flagged"] >= alone["flagged"]
+    assert held["flagged"] >= 12 and held["flagged"] > unheld["flagged"] >= alone["flagged"]
 
 
 def test_upstream_instances_flag_no_static_object_of_the_default_street():

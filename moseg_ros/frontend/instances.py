@@ -12,6 +12,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from moseg_ros.core.baseline import DENSE_IDS
+from moseg_ros.core.flow_field import pulled_forward
 
 
 def propose_regions(evidence: np.ndarray, min_area: int, close_px: int = 5) -> np.ndarray:
@@ -94,18 +95,23 @@ class InstanceTracker:
         self._next_id = 1
         self.ages = {}
 
-    def update(self, regions: np.ndarray) -> np.ndarray:
+    def update(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
         """Relabel ``regions`` ((H, W) int32, 0 = none and 1..R each present) with persistent ids; returns
-        (H, W) int32."""
-        return np.take(self.assign(regions), regions)
+        (H, W) int32. ``flow``: see ``assign``."""
+        return np.take(self.assign(regions, flow), regions)
 
-    def assign(self, regions: np.ndarray) -> np.ndarray:
+    def assign(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
         """The persistent id of each region of ``regions`` (``update``'s input) as a (R + 1,) int32 table, 0 for
-        none; the tracker moves on to this frame as ``update`` does."""
+        none; the tracker moves on to this frame as ``update`` does. ``flow``: the (H, W, 2) dense flow from this
+        frame back to the one before, which moves the previous regions to this frame before they are matched (a
+        looming or fast object overlaps too little of where it was to keep its id otherwise); None: matched
+        where they were."""
         n_cur = int(regions.max(initial=0))
         ids = np.zeros(n_cur + 1, dtype=np.int32)
         if self._previous is not None and self._previous[0].shape == regions.shape and n_cur:
             previous, previous_ids = self._previous
+            if flow is not None and flow.shape[:2] == regions.shape and previous_ids.size < 2**16:
+                previous = pulled_forward(previous.astype(np.uint16), flow, 0).astype(np.int32)
             if previous_ids.size:
                 iou = mask_iou_matrix(previous, regions, previous_ids.size, n_cur)
                 rows, cols = linear_sum_assignment(-iou)
