@@ -375,9 +375,9 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
     this does the same with a region's evidence: the evidence of each lasting region moves by the similarity of
     the tracks on it from the frame before to this one (cv2.estimateAffinePartial2D, RANSAC), or, with too few of
     them (they die with the evidence), by the similarity it moved by last; where less than ``cover`` of it, moved,
-    is evidence now, it is drawn. What coasts is the evidence, not the drawn region, and it goes on from where it
-    went: drawn regions and the tracks in them grew by each coasted frame, and the background's tracks they took
-    in moved the next frame's with the background.
+    is evidence now, it is drawn. What coasts is a region's evidence, not its drawn area, and a coasting region
+    goes on from where its evidence went: a drawn area grows with each coasted frame (and with the memory), and
+    the background's tracks it takes in would move it with the background.
 
     Args:
         moving: (h, w) bool evidence of this frame.
@@ -412,10 +412,8 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
             continue
         shape = coast.shape if coast.shape is not None else evidence & (labels == region)
         there = cv2.warpAffine(shape.astype(np.uint8), motion, (w, h), flags=cv2.INTER_NEAREST) > 0
-        if not there.any() or np.count_nonzero(moving & there) >= cover * np.count_nonzero(there):
-            coasts[region] = Coast(0, motion)
-            continue
-        if veto > 0 and _points_inside(settled, there) >= veto:
+        covered = np.count_nonzero(moving & there) >= cover * np.count_nonzero(there)
+        if not there.any() or covered or (veto > 0 and _points_inside(settled, there) >= veto):
             coasts[region] = Coast(0, motion)
             continue
         if coast.frames >= frames:
