@@ -2,7 +2,8 @@
 
 Without an upstream instance topic the baseline proposes regions from its own motion evidence: connected
 components of a cleaned binary map. The tracker matches each frame's regions to the previous frame's by
-mask IoU with the Hungarian method (scipy.optimize.linear_sum_assignment), so an object keeps its id.
+mask IoU with the Hungarian method (scipy.optimize.linear_sum_assignment), so an object keeps its id; given the
+dense flow, the previous regions are first moved along it to this frame.
 """
 
 from __future__ import annotations
