@@ -672,19 +672,20 @@ class MotionFrontEnd:
             scale = small[1] / self._tracking_shape[1]
             here = flagged & away_from_border(self._points.points * scale, small, self.config.track_border * small[1])
             self.moving_track_points = self._points.points[here]
-            settled = np.isin(self._points.ids, self._frames[0][0]) & ~flagged
+            # Tracks that lived through the window unflagged, at this size: static evidence.
+            settled = self._points.points[np.isin(self._points.ids, self._frames[0][0]) & ~flagged] * scale
             link_px = self.config.link_fraction * small[1]
             points = self.moving_track_points * scale
             group = linked_groups(points, link_px, self.config.min_group)
-            moving = hull_mask(points, small, link_px, self.config.min_group, self._points.points[settled] * scale,
-                               self.config.hull_purity, group, self.config.hull_reach * link_px)
+            moving = hull_mask(points, small, link_px, self.config.min_group, settled, self.config.hull_purity, group,
+                               self.config.hull_reach * link_px)
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
             if refit is not None and refit.dense is not None:
                 moving |= self._confirmed(self._carried(refit), refit)
-            moving = self._remembered(moving, self._points.points[settled] * scale)
+            moving = self._remembered(moving, settled)
             evidence = moving
-            moving = self._coasted(moving, self._points.points[settled] * scale, scale)
+            moving = self._coasted(moving, settled, scale)
             self.moving = moving
             labels = self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px),
                                           self._flow_here())
