@@ -560,6 +560,8 @@ class MotionFrontEnd:
         # region's coasting.
         self._published: tuple[int, np.ndarray, np.ndarray] | None = None
         self._coasting: dict[int, Coast] = {}
+        # ``_seen_back``'s last answer and what it answered: ((frame, frames back), (rows, now, then)).
+        self._seen: tuple[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
     def reset_refit(self) -> None:
         """Forget the refit's state: the window's pair fits, the sticky flags and the last dense mask."""
@@ -699,12 +701,11 @@ class MotionFrontEnd:
         if config.coast_frames <= 0 or last is None or last[0] != self._index - 1 or len(self._frames) < 2:
             self._coasting = {}
             return moving
-        (before_ids, before), (now_ids, now) = self._frames[-2], self._frames[-1]
-        _, then, here = np.intersect1d(before_ids, now_ids, assume_unique=True, return_indices=True)
+        _, now, before = self._seen_back(1)
         lasting = {region: self._coasting.get(region, Coast()) for region, age in self._regions.ages.items()
                    if age >= config.coast_after}
-        out, self._coasting = coasted(moving, last[1], last[2], lasting, before[then] * scale,
-                                      now[here] * scale, settled, config.coast_frames, config.coast_tracks,
+        out, self._coasting = coasted(moving, last[1], last[2], lasting, before * scale,
+                                      now * scale, settled, config.coast_frames, config.coast_tracks,
                                       config.coast_cover, config.memory_veto)
         return out
 
@@ -725,13 +726,23 @@ class MotionFrontEnd:
         gap, flow = self.config.dense_gap, self._flow_here()
         if flow is None or len(self._frames) <= gap or not here.any():
             return moving
-        ids, points = self._points.ids, self._points.points
-        before_ids, before = self._frames[-1 - gap]
-        _, now, then = np.intersect1d(ids, before_ids, assume_unique=True, return_indices=True)
-        of_track = np.full(len(ids), -1, dtype=np.int64)
+        rows, now, before = self._seen_back(gap)
+        of_track = np.full(len(here), -1, dtype=np.int64)
         of_track[here] = group
-        return refine_by_flow(moving, flow, points[now] * scale, (before[then] - points[now]) * scale,
-                              of_track[now], link_px, self.config.object_flow)
+        return refine_by_flow(moving, flow, now * scale, (before - now) * scale, of_track[rows], link_px,
+                              self.config.object_flow)
+
+    def _seen_back(self, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current frame's tracks also seen ``frames`` frames back (at most the window's length): (M,) their
+        rows in the frame's track arrays, (M, 2) their positions now and then (tracking pixels), by increasing id.
+        Worked out once a frame for each ``frames``: the coasting, the flow view and the late dense mask's test
+        all ask it."""
+        key = (self._index, frames)
+        if self._seen is None or self._seen[0] != key:
+            (before_ids, before), (now_ids, now) = self._frames[-1 - frames], self._frames[-1]
+            _, rows, columns = np.intersect1d(now_ids, before_ids, assume_unique=True, return_indices=True)
+            self._seen = (key, (rows, now[rows], before[columns]))
+        return self._seen[1]
 
     def _flow_here(self) -> np.ndarray | None:
         """The current frame's dense flow back to the frame before, None when it has none."""
@@ -778,14 +789,13 @@ class MotionFrontEnd:
         None without enough tracks seen in both, with too little motion to fix it, or with no model."""
         if len(self._frames) < 2:
             return None
-        (before_ids, before), (now_ids, now) = self._frames[-2], self._frames[-1]
-        _, then, here = np.intersect1d(before_ids, now_ids, assume_unique=True, return_indices=True)
+        _, now, before = self._seen_back(1)
         config = self.config.track_motion
-        if here.size < config.min_tracks:
+        if len(now) < config.min_tracks:
             return None
-        if np.median(np.linalg.norm(now[here] - before[then], axis=1)) < config.min_parallax_px:
+        if np.median(np.linalg.norm(now - before, axis=1)) < config.min_parallax_px:
             return None
-        now, before, inlier_px = now[here] * scale, before[then] * scale, config.inlier_px * scale
+        now, before, inlier_px = now * scale, before * scale, config.inlier_px * scale
         if planar:
             homography, _ = homography_ransac(now, before, cv2.RANSAC, inlier_px)
             return None if homography is None else homography_distance(homography, points, matches)
