@@ -442,10 +442,16 @@ class TestCoasted:
     def _tracks_on(cls, x0: int, y0: int = 20, size: int = 10) -> np.ndarray:
         return np.array([[x0 + dx, y0 + dy] for dx in (2, 5, 8) for dy in (2, 5, 8)], dtype=np.float32)
 
-    def _coast(self, moving, lasting, before, now, settled=np.zeros((0, 2)), frames=4, labels=None, evidence=None):
+    def _coast(self, moving, lasting, before, now, settled=np.zeros((0, 2)), frames=4, labels=None, evidence=None,
+               flow=None):
         labels = self._block(10).astype(np.int32) * 7 if labels is None else labels
         evidence = labels > 0 if evidence is None else evidence
-        return coasted(moving, labels, evidence, lasting, before, now, settled, frames, 4, 0.7, 3)
+        return coasted(moving, labels, evidence, lasting, before, now, settled, frames, 4, 0.7, 3, flow)
+
+    @classmethod
+    def _flow_by(cls, dx: float, dy: float) -> np.ndarray:
+        """The backward flow (this frame -> the one before) of everything moving by (dx, dy)."""
+        return np.broadcast_to(np.array([-dx, -dy], dtype=np.float32), (*cls.SHAPE, 2)).copy()
 
     def test_shape_and_dtype(self):
         nothing = np.zeros(self.SHAPE, dtype=bool)
@@ -471,6 +477,22 @@ class TestCoasted:
         out, coasts = self._coast(nothing, {7: Coast(1, last)}, np.zeros((0, 2)), np.zeros((0, 2)))
         np.testing.assert_array_equal(out, self._block(15))
         assert coasts[7].frames == 2
+
+    def test_without_tracks_it_also_goes_where_the_dense_flow_takes_it(self):
+        # A passing car's side is no similarity, and its growth speeds up: the last similarity alone slides its
+        # evidence off the car, the dense flow alone lags behind a looming car (DIS smooths it into the road's).
+        last = np.array([[1, 0, 5], [0, 1, 0]], dtype=np.float64)
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        out, coasts = self._coast(nothing, {7: Coast(1, last)}, np.zeros((0, 2)), np.zeros((0, 2)),
+                                  flow=self._flow_by(0, 3))
+        np.testing.assert_array_equal(out, self._block(15) | self._block(10, 23))
+        np.testing.assert_array_equal(coasts[7].shape, out)
+
+    def test_with_tracks_to_fit_it_moves_by_their_similarity_alone(self):
+        nothing = np.zeros(self.SHAPE, dtype=bool)
+        out, _ = self._coast(nothing, {7: Coast()}, self._tracks_on(10), self._tracks_on(10) + [6, 3],
+                             flow=self._flow_by(-8, 0))
+        np.testing.assert_array_equal(out, self._block(16, 23))
 
     def test_it_goes_on_from_where_it_went_and_stops_after_the_frames_asked(self):
         nothing = np.zeros(self.SHAPE, dtype=bool)
@@ -503,10 +525,12 @@ class TestCoasted:
         np.testing.assert_array_equal(out, self._block(16, 23))
 
 
-def test_the_front_end_coasts_a_passing_car_whose_evidence_drops_out():
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_front_end_coasts_a_passing_car_whose_evidence_drops_out(seed):
     """The synthetic oncoming car as it passes the camera (frames 13-15): its tracks die of its growth and its flow
-    fails the forward-backward check; coasting keeps it."""
-    sequence = render_sequence("oncoming", seed=0, n_frames=16, width=621, height=188)
+    fails the forward-backward check; coasting keeps it in every one of those frames (in seed 1, at frame 15, only
+    with the dense flow's move: its last similarity takes it off the image)."""
+    sequence = render_sequence("oncoming", seed=seed, n_frames=16, width=621, height=188)
     car = next(obj for obj, name in sequence.object_names.items() if name.startswith("car_oncoming"))
 
     def covered(config: MotionFrontEndConfig) -> list[float]:
@@ -518,7 +542,7 @@ def test_the_front_end_coasts_a_passing_car_whose_evidence_drops_out():
         return shares
 
     coasting, without = covered(MotionFrontEndConfig()), covered(MotionFrontEndConfig(coast_frames=0))
-    assert np.mean(coasting[13:]) > 0.4 and np.mean(without[13:]) < 0.2, (coasting[13:], without[13:])
+    assert min(coasting[13:]) > 0.4 and min(without[13:]) < 0.1, (coasting[13:], without[13:])
 
 
 class TestDenseFooting:

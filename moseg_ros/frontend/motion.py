@@ -366,7 +366,7 @@ class Coast:
 
 def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lasting: dict[int, Coast],
             before: np.ndarray, now: np.ndarray, settled: np.ndarray, frames: int, min_tracks: int, cover: float,
-            veto: int) -> tuple[np.ndarray, dict[int, Coast]]:
+            veto: int, flow: np.ndarray | None = None) -> tuple[np.ndarray, dict[int, Coast]]:
     """Lasting regions of the frame before carried where this frame's evidence lost them.
 
     A looming car's tracks die of its growth and its dense flow fails its check as it passes the camera, a small
@@ -374,8 +374,10 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
     object is still in view. A tracker of objects coasts a track whose detections drop out on its motion model;
     this does the same with a region's evidence: the evidence of each lasting region moves by the similarity of
     the tracks on it from the frame before to this one (cv2.estimateAffinePartial2D, RANSAC), or, with too few of
-    them (they die with the evidence), by the similarity it moved by last; where less than ``cover`` of it, moved,
-    is evidence now, it is drawn. What coasts is a region's evidence, not its drawn area, and a coasting region
+    them (they die with the evidence), both by the similarity it moved by last and along the dense ``flow``: a
+    passing car's side is no similarity and its growth speeds up, so the last similarity alone slides the evidence
+    off the car (or the image), while the dense flow alone lags behind a looming car, smoothed into the road's;
+    where less than ``cover`` of it, moved, is evidence now, it is drawn. What coasts is a region's evidence, not its drawn area, and a coasting region
     goes on from where its evidence went: a drawn area grows with each coasted frame (and with the memory), and
     the background's tracks it takes in would move it with the background.
 
@@ -391,6 +393,7 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
         min_tracks: fewest tracks of a region's evidence that fix its similarity.
         cover: the share of a region's moved evidence that this frame's evidence must cover for it not to coast.
         veto: a region's moved evidence holding this many ``settled`` points is not drawn (0: no veto).
+        flow: (h, w, 2) dense flow from this frame back to the frame before, or None (the last similarity alone).
 
     Returns:
         ``moving`` with the moved evidence of each lasting region whose evidence dropped and that has coasted
@@ -402,16 +405,18 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
     owner = np.where(evidence[xy[:, 1], xy[:, 0]], labels[xy[:, 1], xy[:, 0]], 0)
     for region, coast in lasting.items():
         mine = owner == region
-        motion = coast.motion
+        fitted = None
         if np.count_nonzero(mine) >= min_tracks:
             fitted, _ = cv2.estimateAffinePartial2D(before[mine], now[mine], method=cv2.RANSAC,
                                                     ransacReprojThreshold=2.0)
-            motion = fitted if fitted is not None else motion
+        motion = fitted if fitted is not None else coast.motion
         if motion is None:
             coasts[region] = coast
             continue
         shape = coast.shape if coast.shape is not None else evidence & (labels == region)
         there = cv2.warpAffine(shape.astype(np.uint8), motion, (w, h), flags=cv2.INTER_NEAREST) > 0
+        if fitted is None and flow is not None and flow.shape[:2] == shape.shape:
+            there |= pulled_forward(shape.astype(np.uint8), flow, 0) > 0
         covered = np.count_nonzero(moving & there) >= cover * np.count_nonzero(there)
         if not there.any() or covered or (veto > 0 and _points_inside(settled, there) >= veto):
             coasts[region] = Coast(0, motion)
@@ -706,7 +711,7 @@ class MotionFrontEnd:
                    if age >= config.coast_after}
         out, self._coasting = coasted(moving, last[1], last[2], lasting, before * scale,
                                       now * scale, settled, config.coast_frames, config.coast_tracks,
-                                      config.coast_cover, config.memory_veto)
+                                      config.coast_cover, config.memory_veto, self._flow_here())
         return out
 
     def _remembered(self, fresh: np.ndarray, settled: np.ndarray) -> np.ndarray:
