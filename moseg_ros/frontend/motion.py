@@ -377,9 +377,10 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
     them (they die with the evidence), both by the similarity it moved by last and along the dense ``flow``: a
     passing car's side is no similarity and its growth speeds up, so the last similarity alone slides the evidence
     off the car (or the image), while the dense flow alone lags behind a looming car, smoothed into the road's;
-    where less than ``cover`` of it, moved, is evidence now, it is drawn. What coasts is a region's evidence, not its drawn area, and a coasting region
-    goes on from where its evidence went: a drawn area grows with each coasted frame (and with the memory), and
-    the background's tracks it takes in would move it with the background.
+    where less than ``cover`` of it, moved, is evidence now, it is drawn. What coasts is a region's evidence, not
+    its drawn area, and a coasting region goes on from where its evidence went: a drawn area grows with each
+    coasted frame (and with the memory), and the background's tracks it takes in would move it with the
+    background.
 
     Args:
         moving: (h, w) bool evidence of this frame.
