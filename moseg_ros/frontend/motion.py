@@ -52,11 +52,11 @@ Both are drawn at ``dense_width``. Their union is remembered for ``memory_frames
 drops out (a looming car's tracks and flow, a small fast mover's flicker) is carried along the backward flow,
 unless ``memory_veto`` tracks that lived through the window unflagged lie in what is carried. A region published
 ``coast_after`` frames in a row coasts as a tracker's object does when its detections drop out (``coasted``): where
-its evidence, moved by the similarity of the tracks on it, is no longer covered by this frame's evidence, it is
-drawn there for up to ``coast_frames`` frames (a car passing the camera, whose tracks die of its growth and whose
-flow fails its check). The result, closed and opened, is split into connected regions of ``min_region_area``
-pixels or more, and the InstanceTracker gives them persistent ids, matching them against the last frame's regions
-moved along the flow.
+its evidence, moved by the similarity of the tracks on it (once they have died, by their last similarity and
+along the dense flow), is no longer covered by this frame's evidence, it is drawn there for up to ``coast_frames``
+frames (a car passing the camera, whose tracks die of its growth and whose flow fails its check). The result,
+closed and opened, is split into connected regions of ``min_region_area`` pixels or more, and the InstanceTracker
+gives them persistent ids, matching them against the last frame's regions moved along the flow.
 """
 
 from __future__ import annotations
@@ -184,10 +184,11 @@ class MotionFrontEndConfig:
     memory_frames: int = 1
     memory_veto: int = 3
     # A region published ``coast_after`` frames in a row whose evidence, moved by the similarity of the tracks on
-    # it (``coast_tracks`` or more, of any age), is less than ``coast_cover`` evidence now is drawn there for up to
-    # ``coast_frames`` frames in a row (``coasted``): a looming or small fast car's evidence drops out for a few
-    # frames. Each more frame (1-4) and a higher cover (0.5-0.7) caught more of the synthetic cars at a few
-    # hundredths of a point of KT3DMoSeg's static points (docs/experiments.md). 0: off.
+    # it (``coast_tracks`` or more, of any age; with fewer, by their last similarity and along the dense flow), is
+    # less than ``coast_cover`` evidence now is drawn there for up to ``coast_frames`` frames in a row (``coasted``):
+    # a looming or small fast car's evidence drops out for a few frames. Each more frame (1-4) and a higher cover
+    # (0.5-0.7) caught more of the synthetic cars at a few hundredths of a point of KT3DMoSeg's static points
+    # (docs/experiments.md). 0: off.
     coast_frames: int = 4
     coast_after: int = 3
     coast_tracks: int = 4
