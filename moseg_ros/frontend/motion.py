@@ -415,10 +415,10 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
         if motion is None:
             coasts[region] = coast
             continue
-        shape = coast.shape if coast.shape is not None else evidence & (labels == region)
-        there = cv2.warpAffine(shape.astype(np.uint8), motion, (w, h), flags=cv2.INTER_NEAREST) > 0
+        shape = (coast.shape if coast.shape is not None else evidence & (labels == region)).astype(np.uint8)
+        there = cv2.warpAffine(shape, motion, (w, h), flags=cv2.INTER_NEAREST) > 0
         if fitted is None and flow is not None and flow.shape[:2] == shape.shape:
-            there |= pulled_forward(shape.astype(np.uint8), flow, 0) > 0
+            there |= pulled_forward(shape, flow, 0) > 0
         covered = np.count_nonzero(moving & there) >= cover * np.count_nonzero(there)
         if not there.any() or covered or (veto > 0 and _points_inside(settled, there) >= veto):
             coasts[region] = Coast(0, motion)
