@@ -20,9 +20,9 @@ Two kinds of evidence, both residuals of the camera's own (dominant) rigid motio
   forever); a refit that comes several frames after the one before (a background refit slower than the camera)
   counts its flags for each window it stands in for, so that a slow refit's flags stick as soon as every
   frame's refits' would. Flagged tracks closer than ``link_fraction`` of the image width are linked, and each
-  group of ``min_group`` or more fills its hull (the triangles between its tracks no longer than ``hull_reach``
-  times the link distance), unless the tracks that lived through the whole window unflagged make up more than
-  1 - ``hull_purity`` of the tracks inside its convex hull; flagged tracks within
+  group of ``min_group`` or more fills its hull (frontend/regions.py: the triangles between its tracks no longer
+  than ``hull_reach`` times the link distance), unless the tracks that lived through the whole window unflagged
+  make up more than 1 - ``hull_purity`` of the tracks inside its convex hull; flagged tracks within
   ``track_border`` of the image's border are not drawn. The flow view then grows each hull
   over the pixels whose dense flow follows the group's own flow model, and trims what follows the
   background's around it (``object_flow``, core/object_flow.py).
@@ -48,15 +48,15 @@ homography (the F of a camera that only turns is degenerate and takes a slow mov
 mask holds what moved between the two frames before, and a limb that stopped, or the background a mover uncovered,
 comes along with it. The pixels the depth tests flagged stay (their motion lies in the epipolar plane).
 
-Both are drawn at ``dense_width``. Their union is remembered for ``memory_frames`` frames: evidence that
-drops out (a looming car's tracks and flow, a small fast mover's flicker) is carried along the backward flow,
-unless ``memory_veto`` tracks that lived through the window unflagged lie in what is carried. A region published
-``coast_after`` frames in a row coasts as a tracker's object does when its detections drop out (``coasted``): where
-its evidence, moved by the similarity of the tracks on it (once they have died, by their last similarity and
-along the dense flow), is no longer covered by this frame's evidence, it is drawn there for up to ``coast_frames``
-frames (a car passing the camera, whose tracks die of its growth and whose flow fails its check). The result,
-closed and opened, is split into connected regions of ``min_region_area`` pixels or more, and the InstanceTracker
-gives them persistent ids, matching them against the last frame's regions moved along the flow.
+Both are drawn at ``dense_width``. Their union is remembered (frontend/memory.py) for ``memory_frames`` frames:
+evidence that drops out (a looming car's tracks and flow, a small fast mover's flicker) is carried along the
+backward flow, unless ``memory_veto`` tracks that lived through the window unflagged lie in what is carried. A
+region published ``coast_after`` frames in a row coasts as a tracker's object does when its detections drop out
+(``coasted``): where its evidence, moved by the similarity of the tracks on it (once they have died, by their last
+similarity and along the dense flow), is no longer covered by this frame's evidence, it is drawn there for up to
+``coast_frames`` frames (a car passing the camera, whose tracks die of its growth and whose flow fails its check).
+The result, closed and opened, is split into connected regions of ``min_region_area`` pixels or more, and the
+InstanceTracker gives them persistent ids, matching them against the last frame's regions moved along the flow.
 """
 
 from __future__ import annotations
@@ -66,13 +66,10 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from moseg_ros.core.baseline import (BaselineConfig, EpipolarResidual, epipolar_residual, homography_distance,
                                     sampson_pixels)
-from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, pulled_forward, shrink_scale
+from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.robust import fundamental_polished, homography_ransac
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
@@ -80,6 +77,8 @@ from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotio
                                          moving_tracks, nearer_than_road, pair_evidence, short_of_ground)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, remembered
+from moseg_ros.frontend.regions import hull_mask, linked_groups, touching
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.timing import Stages
 
@@ -228,74 +227,6 @@ def resized_to_width(gray: np.ndarray, width: int, max_pixels: int = 0) -> np.nd
     return cv2.resize(gray, size, interpolation=cv2.INTER_LINEAR if gray.shape[1] < size[0] else cv2.INTER_AREA)
 
 
-def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndarray:
-    """(N,) group of each of the (N, 2) ``points`` when points closer than ``link_px`` are linked; -1 for the
-    points of groups smaller than ``min_group``."""
-    if len(points) < min_group:
-        return np.full(len(points), -1, dtype=np.int64)
-    pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, group = connected_components(graph, directed=False)
-    return np.where(np.bincount(group)[group] >= min_group, group, -1).astype(np.int64)
-
-
-def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
-              static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None,
-              reach_px: float = 0.0) -> np.ndarray:
-    """Link points closer than ``link_px``; fill the hull of every group of ``min_group`` or more whose points
-    are at least ``purity`` of its points plus the ``static`` points inside its convex hull.
-
-    Args:
-        points: (N, 2) positions (x, y).
-        shape: (H, W) of the mask.
-        link_px: largest distance between two linked points.
-        min_group: smallest group that makes a region.
-        static: optional (S, 2) positions of points known not to move; a hull they crowd is not drawn.
-        purity: the smallest share of a hull's points that must be ``points`` (0: every group is drawn).
-        group: optional (N,) ``linked_groups(points, link_px, min_group)``, when the caller has it already.
-        reach_px: > 0: a group's hull is the union of the triangles of its points' Delaunay triangulation whose
-            sides are at most this long (``reach_triangles``: a concave outline); 0: its convex hull.
-
-    Returns:
-        (H, W) bool mask.
-    """
-    mask = np.zeros(shape, dtype=np.uint8)
-    group = linked_groups(points, link_px, min_group) if group is None else group
-    sizes = np.bincount(group[group >= 0])
-    static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
-    for g in np.flatnonzero(sizes >= min_group):
-        members = points[group == g]
-        hull = cv2.convexHull(np.rint(members).astype(np.int32))
-        x0, y0, w, h = cv2.boundingRect(hull)
-        local = np.zeros((h, w), dtype=np.uint8)
-        cv2.fillConvexPoly(local, hull - np.array([x0, y0], dtype=np.int32), 1)
-        if len(static):
-            near = static - [x0, y0]
-            near = near[(near[:, 0] >= 0) & (near[:, 0] < w) & (near[:, 1] >= 0) & (near[:, 1] < h)]
-            if sizes[g] < purity * (sizes[g] + local[near[:, 1], near[:, 0]].sum()):
-                continue
-        triangles = reach_triangles(members, reach_px) if reach_px > 0 and len(members) > 3 else None
-        if triangles is not None:
-            local[:] = 0
-            if len(triangles):
-                cv2.fillPoly(local, list(np.rint(triangles - [x0, y0]).astype(np.int32)), 1)
-        view = mask[y0:y0 + h, x0:x0 + w]
-        view |= local[:view.shape[0], :view.shape[1]]
-    return mask.astype(bool)
-
-
-def reach_triangles(points: np.ndarray, reach_px: float) -> np.ndarray | None:
-    """(T, 3, 2) the triangles of the (N, 2) ``points``' Delaunay triangulation (scipy.spatial.Delaunay) whose
-    sides are all at most ``reach_px`` long: the alpha shape's region, which follows an outline's bays where the
-    convex hull bridges them. None when the points span no triangle (collinear, or fewer than three distinct)."""
-    try:
-        corners = points[Delaunay(points).simplices]
-    except QhullError:
-        return None
-    sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-    return corners[sides.max(axis=1) <= reach_px]
-
-
 def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarray:
     """(N,) the largest of the (h, w) ``residual`` within ``reach`` pixels (a square) of each of the (N, 2)
     ``points`` (x, y at the residual's size; points outside take the nearest border pixel)."""
@@ -306,19 +237,6 @@ def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarr
     return residual[xy[:, 1], xy[:, 0]]
 
 
-def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
-    """``mask`` (h, w) bool, or uint8 labels, of frame ``index`` warped along the (frame, backward flow to the frame
-    before) pairs of ``backward`` whose frame is later, oldest first: where it lies in the last of them (of the
-    same dtype)."""
-    labels = mask.astype(np.uint8, copy=False)
-    for frame, flow in backward:
-        if frame <= index:
-            continue
-        labels = pulled_forward(labels, flow, 0)
-    return labels if mask.dtype == np.uint8 else labels > 0
-
-
-NO_EVIDENCE = np.uint8(255)
 # The label of the depth tests' pixels in ``dense_labels`` (1: the rest of the dense mask).
 DEPTH_LABEL = 2
 
@@ -330,123 +248,6 @@ def dense_labels(refit: Refit) -> np.ndarray:
     if refit.dense_depth is not None:
         labels[refit.dense_depth] = DEPTH_LABEL
     return labels
-
-
-def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | None, settled: np.ndarray,
-               frames: int, veto: int) -> np.ndarray:
-    """(h, w) uint8 age of each pixel's moving evidence, in frames: 0 where ``fresh`` ((h, w) bool) holds it;
-    k <= ``frames`` where the frame before's ages ``before`` ((h, w) uint8, None: no such frame) held k - 1,
-    carried along ``flow`` ((h, w, 2), this frame -> the one before); NO_EVIDENCE elsewhere, and over each
-    carried region that is not fresh now and holds ``veto`` or more of the (S, 2) ``settled`` points (x, y:
-    static evidence; 0: no veto)."""
-    age = np.where(fresh, 0, NO_EVIDENCE).astype(np.uint8)
-    if frames <= 0 or before is None or flow is None or before.shape != fresh.shape:
-        return age
-    carried = pulled_forward(before, flow, int(NO_EVIDENCE))
-    kept = (carried < frames) & ~fresh
-    if veto > 0 and len(settled) and kept.any():
-        count, labels = cv2.connectedComponents(kept.astype(np.uint8), connectivity=8)
-        xy = np.clip(np.rint(settled).astype(np.int64), 0, [fresh.shape[1] - 1, fresh.shape[0] - 1])
-        vetoed = np.bincount(labels[xy[:, 1], xy[:, 0]], minlength=count) >= veto
-        vetoed[0] = False
-        kept &= ~vetoed[labels]
-    age[kept] = carried[kept] + 1
-    return age
-
-
-@dataclass(frozen=True)
-class Coast:
-    """A lasting region's coasting: the frames in a row it was drawn without its evidence, the (2, 3) similarity it
-    last moved by (its tracks' from the frame before; None before one was fitted) and, while it coasts, its
-    (h, w) bool evidence of its last frame with evidence, moved to the frame before."""
-
-    frames: int = 0
-    motion: np.ndarray | None = None
-    shape: np.ndarray | None = None
-
-
-def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lasting: dict[int, Coast],
-            before: np.ndarray, now: np.ndarray, settled: np.ndarray, frames: int, min_tracks: int, cover: float,
-            veto: int, flow: np.ndarray | None = None) -> tuple[np.ndarray, dict[int, Coast]]:
-    """Lasting regions of the frame before carried where this frame's evidence lost them.
-
-    A looming car's tracks die of its growth and its dense flow fails its check as it passes the camera, a small
-    fast car's flow is smoothed into the background's: the evidence drops out for a frame or three while the
-    object is still in view. A tracker of objects coasts a track whose detections drop out on its motion model;
-    this does the same with a region's evidence: the evidence of each lasting region moves by the similarity of
-    the tracks on it from the frame before to this one (cv2.estimateAffinePartial2D, RANSAC), or, with too few of
-    them (they die with the evidence), both by the similarity it moved by last and along the dense ``flow``: a
-    passing car's side is no similarity and its growth speeds up, so the last similarity alone slides the evidence
-    off the car (or the image), while the dense flow alone lags behind a looming car, smoothed into the road's;
-    where less than ``cover`` of it, moved, is evidence now, it is drawn. What coasts is a region's evidence, not
-    its drawn area, and a coasting region goes on from where its evidence went: a drawn area grows with each
-    coasted frame (and with the memory), and the background's tracks it takes in would move it with the
-    background.
-
-    Args:
-        moving: (h, w) bool evidence of this frame.
-        labels: (h, w) int region ids published for the frame before.
-        evidence: (h, w) bool evidence of the frame before (its ``moving`` before its coasting).
-        lasting: {id: Coast} of the regions that may coast (published for long enough).
-        before: (N, 2) positions (x, y, at this size) in the frame before of the tracks seen in both frames.
-        now: (N, 2) their positions in this frame.
-        settled: (S, 2) tracks that lived through the window unflagged (static evidence).
-        frames: most frames in a row a region coasts.
-        min_tracks: fewest tracks of a region's evidence that fix its similarity.
-        cover: the share of a region's moved evidence that this frame's evidence must cover for it not to coast.
-        veto: a region's moved evidence holding this many ``settled`` points is not drawn (0: no veto).
-        flow: (h, w, 2) dense flow from this frame back to the frame before, or None (the last similarity alone).
-
-    Returns:
-        ``moving`` with the moved evidence of each lasting region whose evidence dropped and that has coasted
-        fewer than ``frames`` frames in a row; and {id: Coast} of the lasting regions.
-    """
-    out, coasts = moving.copy(), {}
-    h, w = labels.shape
-    xy = np.clip(np.rint(before).astype(np.int64), 0, [w - 1, h - 1])
-    owner = np.where(evidence[xy[:, 1], xy[:, 0]], labels[xy[:, 1], xy[:, 0]], 0)
-    for region, coast in lasting.items():
-        mine = owner == region
-        fitted = None
-        if np.count_nonzero(mine) >= min_tracks:
-            fitted, _ = cv2.estimateAffinePartial2D(before[mine], now[mine], method=cv2.RANSAC,
-                                                    ransacReprojThreshold=2.0)
-        motion = fitted if fitted is not None else coast.motion
-        if motion is None:
-            coasts[region] = coast
-            continue
-        shape = (coast.shape if coast.shape is not None else evidence & (labels == region)).astype(np.uint8)
-        there = cv2.warpAffine(shape, motion, (w, h), flags=cv2.INTER_NEAREST) > 0
-        if fitted is None and flow is not None and flow.shape[:2] == shape.shape:
-            there |= pulled_forward(shape, flow, 0) > 0
-        covered = np.count_nonzero(moving & there) >= cover * np.count_nonzero(there)
-        if not there.any() or covered or (veto > 0 and _points_inside(settled, there) >= veto):
-            coasts[region] = Coast(0, motion)
-            continue
-        if coast.frames >= frames:
-            coasts[region] = Coast(frames, motion, there)
-            continue
-        out |= there
-        coasts[region] = Coast(coast.frames + 1, motion, there)
-    return out, coasts
-
-
-def _points_inside(points: np.ndarray, mask: np.ndarray) -> int:
-    """How many of the (N, 2) ``points`` (x, y) lie in the (h, w) bool ``mask``."""
-    h, w = mask.shape
-    xy = np.rint(points).astype(np.int64)
-    inside = (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
-    return int(np.count_nonzero(mask[xy[inside, 1], xy[inside, 0]]))
-
-
-def touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """(h, w) bool: the 8-connected regions of ``candidates`` that share a pixel with ``seeds`` (both (h, w)
-    bool)."""
-    count, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
-    keep = np.zeros(count, dtype=bool)
-    keep[labels[candidates & seeds]] = True
-    keep[0] = False
-    return keep[labels]
 
 
 @dataclass(frozen=True)
