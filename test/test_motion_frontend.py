@@ -349,6 +349,31 @@ class TestDenseFooting:
         assert dense[is_oncoming].mean() > 0.5
 
 
+def test_the_far_oncoming_car_is_flagged_from_its_first_frames(monkeypatch):
+    """The synthetic oncoming car of seed 1 while it is far (frames 3-7): its footing lies near the horizon, where
+    nothing static overhangs the road under it by more than a sliver of its depth, so the footing's allowance
+    (``footing_allowance``) is the road's tolerance and little more; a flat allowance of 1.4 (before) left it
+    unflagged in frames 3-4 and at 0.43 of it in frame 7."""
+    import moseg_ros.methods.moving_objects as moving_objects
+    from moseg_ros.pipeline import Pipeline, PipelineConfig
+
+    sequence = render_sequence("oncoming", seed=1, n_frames=16, width=621, height=188)
+    car = next(obj for obj, name in sequence.object_names.items() if name.startswith("car_oncoming"))
+
+    def covered() -> list[float]:
+        with Pipeline(PipelineConfig()) as pipeline:
+            masks = [pipeline.process(frame.rgb, frame.stamp_ns).masks.dynamic for frame in sequence.frames[:8]]
+        return [float((mask > 0)[frame.instances == car].mean()) for mask, frame in zip(masks, sequence.frames)]
+
+    allowed = covered()
+    default = moving_objects.front_end_config
+    flat = TrackMotionConfig(footing_margin=0.4, footing_overhang=0.0)
+    monkeypatch.setattr(moving_objects, "front_end_config", lambda config: replace(default(config), track_motion=flat))
+    before = covered()
+    assert min(allowed[3:5]) > 0.3 and min(allowed[5:8]) > 0.8, allowed
+    assert max(before[3:5]) < 0.05 and before[7] < 0.5, before
+
+
 class TestAwayFromBorder:
     def test_shape_and_known_values(self):
         points = np.array([[5.0, 5.0], [2.0, 10.0], [17.0, 10.0], [10.0, 2.9], [10.0, 17.0]])

@@ -99,7 +99,9 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
     beyond it too, 0.54 % since a track's footing needs something clearly under its object (``footing_clearance``:
     the white van cut by the image's lower edge, frames 46-49). Over frames 40-60: 0.65 % with that, 0.52 % since a
     pixel's dense footing needs road clearly under it (``dense_footing_clearance``: frame 59's number plate on a
-    parked car cut by the image's lower edge)."""
+    parked car cut by the image's lower edge), 0.31 % on 2026-12-05, 0.28 % since the footing's allowance grows
+    with the footing's nearness (``TrackMotionConfig.footing_overhang``; 0.92 % with the road's tolerance alone as
+    the margin)."""
     import cv2
     from dataclasses import replace
 
@@ -113,7 +115,7 @@ def test_near_parked_cars_of_a_real_street_are_mostly_left_usable():
         for i in range(36, 61):
             frame = cv2.imread(str(sequence.images[i]), cv2.IMREAD_GRAYSCALE)
             flagged.append((pipeline.process(frame, sequence.stamps_ns[i], None, sequence.K).masks.dynamic > 0).mean())
-    assert np.mean(flagged[4:]) < 0.006
+    assert np.mean(flagged[4:]) < 0.0045
 
 
 def test_missing_bag_and_existing_output_are_clear_errors(textured_bag, tmp_path, capsys):

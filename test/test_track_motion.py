@@ -15,7 +15,8 @@ from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
                                          beyond_allowance, decided_ratios, dense_parallax, far_behind,
-                                         footing_columns, footing_excess, ground_floor, ground_parallax_ratio,
+                                         footing_allowance, footing_columns, footing_excess, ground_floor,
+                                         ground_parallax_ratio,
                                          ground_slope, guessed_camera_matrix, may_be_planar, moving_tracks,
                                          nearer_than_road, pair_evidence, pair_residual, pair_residuals, row_medians,
                                          signed_parallax, standing_rows, standing_shortfall)
@@ -443,7 +444,8 @@ class TestGroundParallaxRatio:
         assert ground_parallax_ratio(tracks[:, 0], _parallax(tracks[:, 0], tracks[:, 2])) is None
         tracks, _, _ = road()
         full = _parallax(tracks[:, 0], tracks[:, 2])
-        few = Parallax(full.signed[::25], full.gain[::25], full.epipole_row, full.rotation, full.translation)
+        few = Parallax(full.signed[::25], full.gain[::25], full.epipole_row, full.rotation, full.translation,
+                       full.focal)
         assert ground_parallax_ratio(tracks[::25, 0], few) is None
 
 
@@ -672,6 +674,25 @@ def cut_car_street_flow(height: int = 120, width: int = 320):
     return to_previous, faces[0] | faces[1], faces[2], K_flow
 
 
+class TestFootingAllowance:
+    def test_shape_follows_the_rows(self):
+        assert footing_allowance(np.zeros((4, 5)), 0.0, 100.0).shape == (4, 5)
+        assert footing_allowance(np.zeros(3, dtype=np.uint16), 0.0, 100.0).shape == (3,)
+
+    def test_known_values(self):
+        config = TrackMotionConfig(footing_margin=0.3, footing_overhang=1.0)
+        # At and above the epipole row the margin alone; a focal length below it, one overhang more.
+        np.testing.assert_allclose(footing_allowance(np.array([40.0, 50.0, 150.0, 250.0]), 50.0, 200.0, config),
+                                   [1.3, 1.3, 1.8, 2.3], rtol=1e-6)
+
+    def test_the_overhang_share_scales_with_the_setting(self):
+        rows = np.array([60.0, 90.0])
+        flat = footing_allowance(rows, 50.0, 100.0, TrackMotionConfig(footing_margin=0.4, footing_overhang=0.0))
+        twice = footing_allowance(rows, 50.0, 100.0, TrackMotionConfig(footing_margin=0.3, footing_overhang=2.0))
+        np.testing.assert_allclose(flat, [1.4, 1.4])
+        np.testing.assert_allclose(twice, [1.5, 2.1], rtol=1e-6)
+
+
 class TestNearerThanRoad:
     def _near(self, to_previous, K_flow, valid=None, config=TrackMotionConfig()):
         valid = np.ones(to_previous.shape[:2], bool) if valid is None else valid
@@ -722,12 +743,17 @@ class TestNearerThanRoad:
         to_previous, is_parked, is_oncoming, K_flow = cut_car_street_flow()
         valid = np.ones(is_parked.shape, bool)
         parallax = dense_parallax(to_previous, valid, _dense_fundamental(to_previous), K_flow)
-        # The face's last rows above the image's edge pass for road, and the plate reads nearer than them.
-        unguarded = nearer_than_road(parallax, valid)
+        # The face's last rows above the image's edge pass for road, and under the margin alone the plate reads
+        # nearer than them; the clearance guards it, and so does the overhang's share of the allowance.
+        flat = dataclasses.replace(TrackMotionConfig(), footing_overhang=0.0)
+        unguarded = nearer_than_road(parallax, valid, flat)
         assert unguarded[is_parked].sum() > 50 and unguarded[is_oncoming].mean() > 0.9
-        near = nearer_than_road(parallax, valid, clearance=MotionFrontEndConfig().dense_footing_clearance)
-        assert not near[is_parked].any() and near[is_oncoming].mean() > 0.9
-        assert not near[~is_oncoming].any()
+        clearance = MotionFrontEndConfig().dense_footing_clearance
+        for config in (flat, TrackMotionConfig()):
+            near = nearer_than_road(parallax, valid, config, clearance=clearance)
+            assert not near[is_parked].any() and near[is_oncoming].mean() > 0.9
+            assert not near[~is_oncoming].any()
+        assert not nearer_than_road(parallax, valid)[is_parked].any()
 
     def test_none_when_the_camera_does_not_drive_along_its_axis(self):
         to_previous, _, _, K_flow = oncoming_street_flow(lateral=3.0)  # 3 m sideways to 1 m forward
