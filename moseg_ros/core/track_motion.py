@@ -623,8 +623,8 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
         stands = np.maximum(first_road[found], base[found])
         road_support = slope * (stands - parallax.epipole_row)
         lower = road_support < support[found]
-        support[np.flatnonzero(found)[lower]] = road_support[lower]
-        support_row[np.flatnonzero(found)[lower]] = stands[lower]
+        on_road = np.flatnonzero(found)[lower]
+        support[on_road], support_row[on_road] = road_support[lower], stands[lower]
     ahead = support * parallax.gain[tested]  # the parallax the footing's depth gives at the track
     # Where nothing of the column lies clearly below the object's lowest track, its ground contact is out of view
     # (a near parked van cut by the image's edge), and what the column holds lies beside the object, not under it.
