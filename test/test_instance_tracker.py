@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from moseg_ros.frontend.instances import InstanceTracker, compact_ids, mask_iou_matrix, propose_regions
+from moseg_ros.frontend.instances import (InstanceTracker, compact_ids, kept_apart, mask_iou_matrix, nearest_seed,
+                                          propose_regions)
 
 
 def boxes(shape: tuple[int, int], *rects: tuple[int, int, int, int]) -> np.ndarray:
@@ -101,3 +102,66 @@ class TestInstanceTracker:
         tracker = InstanceTracker()
         labels = tracker.update(np.zeros(self.SHAPE, dtype=np.int32))
         assert labels.shape == self.SHAPE and not labels.any() and tracker.ages == {}
+
+
+class TestNearestSeed:
+    def test_known_values(self):
+        seeds = np.zeros((1, 6), dtype=np.int32)
+        seeds[0, 0], seeds[0, 5] = 4, 9
+        assert nearest_seed(seeds).tolist() == [[4, 4, 4, 9, 9, 9]]
+
+    def test_shape_and_seeds_keep_their_values(self):
+        seeds = np.zeros((20, 30), dtype=np.int32)
+        seeds[2, 3], seeds[15, 25] = 1, 2
+        nearest = nearest_seed(seeds)
+        assert nearest.shape == (20, 30) and nearest[2, 3] == 1 and nearest[15, 25] == 2
+        assert nearest[0, 0] == 1 and nearest[19, 29] == 2
+
+
+class TestKeptApart:
+    SHAPE = (40, 60)
+
+    def test_a_region_that_took_in_two_is_split_between_them(self):
+        before = boxes(self.SHAPE, (10, 5, 20, 20), (10, 35, 20, 20))
+        joined = boxes(self.SHAPE, (10, 5, 20, 50))  # the two grew into one
+        split = kept_apart(joined, before, np.array([False, True, True]), 0.5)
+        assert set(np.unique(split)) == {0, 1, 2}
+        assert (split[before == 1] == 1).all() and (split[before == 2] == 2).all()
+        assert (split > 0).sum() == (joined > 0).sum()  # the same pixels, only numbered apart
+        assert (split[:, :30] != 2).all() and (split[:, 30:] != 1).all()  # each gap pixel to the nearer one
+
+    def test_regions_not_eligible_or_mostly_elsewhere_are_not_kept_apart(self):
+        before = boxes(self.SHAPE, (10, 5, 20, 20), (10, 35, 20, 20))
+        joined = boxes(self.SHAPE, (10, 5, 20, 50))
+        np.testing.assert_array_equal(kept_apart(joined, before, np.array([False, True, False]), 0.5), joined)
+        half = boxes(self.SHAPE, (10, 5, 20, 35))  # holds a quarter of the second region only
+        np.testing.assert_array_equal(kept_apart(half, before, np.array([False, True, True]), 0.5), half)
+
+    def test_nothing_in_nothing_out(self):
+        empty = np.zeros(self.SHAPE, dtype=np.int32)
+        assert not kept_apart(empty, empty, np.array([False]), 0.5).any()
+
+
+class TestInstanceTrackerKeepsApart:
+    SHAPE = (40, 80)
+
+    def _run(self, tracker):
+        """Two boxes 4 px a frame closer for three frames, then joined: the ids of the last frame's two halves."""
+        for step in range(3):
+            tracker.update(boxes(self.SHAPE, (10, 5 + 4 * step, 20, 20), (10, 50 - 4 * step, 20, 20)))
+        before = tracker.update(boxes(self.SHAPE, (10, 17, 20, 20), (10, 38, 20, 20)))
+        joined = tracker.update(boxes(self.SHAPE, (10, 19, 20, 42)))
+        return before, joined
+
+    def test_two_regions_seen_apart_keep_their_ids_when_they_join(self):
+        before, joined = self._run(InstanceTracker(keep_apart_after=3))
+        assert joined[20, 22] == before[20, 22] and joined[20, 55] == before[20, 55]
+        assert joined[20, 22] != joined[20, 55]
+
+    def test_without_it_the_joined_region_takes_one_id(self):
+        _, joined = self._run(InstanceTracker())
+        assert joined[20, 22] == joined[20, 55]
+
+    def test_regions_seen_for_fewer_frames_are_joined(self):
+        _, joined = self._run(InstanceTracker(keep_apart_after=5))
+        assert joined[20, 22] == joined[20, 55]

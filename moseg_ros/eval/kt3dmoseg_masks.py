@@ -6,8 +6,10 @@ dynamic mask (``mask[round(y), round(x)]``). Label 1 is the static background, l
 moving objects. Reported per clip: recall on moving points, the share of static points flagged (an upper
 bound: label 1 includes a few unannotated movers), object-frames detected and ms per frame. An object-frame
 is one moving object (label >= 2) in one frame where at least one of its labelled points is visible; it is
-detected when at least half of those points are in the mask. Over all clips: the per-clip means, and recall,
-static points flagged and object-frames detected pooled over every scored point-frame or object-frame. The
+detected when at least half of those points are in the mask. How the published instances follow the moving
+objects at their points (eval/identities.py): id switches, and object-frames whose instance holds another moving
+object too. Over all clips: the per-clip means, and recall, static points flagged, object-frames detected and the
+instances' counts pooled over every scored point-frame or object-frame. The
 first frame of each clip (no motion evidence yet) is not scored. Clips without frames are listed and skipped.
 A frame that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees it, and
 its points are not scored), and listed under its clip (``unreadable``).
@@ -24,6 +26,7 @@ import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -47,6 +50,8 @@ class ClipMaskScore:
     static_hits: int
     object_frames: int
     object_frames_detected: int
+    id_switches: int = 0
+    shared_object_frames: int = 0
     unreadable: list[str] = field(default_factory=list)
 
 
@@ -61,15 +66,31 @@ def frames_folder(root: Path, clip: str) -> Path | None:
 
 def points_in_masks(masks: list[np.ndarray], clip: Clip) -> np.ndarray:
     """(N, F) bool: whether each trajectory point lies in its frame's dynamic mask (False where not visible)."""
-    height, width = masks[0].shape
-    hits = np.zeros(clip.visible.shape, dtype=bool)
-    for t, mask in enumerate(masks):
+    return values_at_points(masks, clip) > 0
+
+
+def values_at_points(maps: list[np.ndarray], clip: Clip) -> np.ndarray:
+    """(N, F) int64: each trajectory point's value in its frame's (H, W) map (0 where not visible or outside)."""
+    height, width = maps[0].shape
+    values = np.zeros(clip.visible.shape, dtype=np.int64)
+    for t, image in enumerate(maps):
         seen = clip.visible[:, t]
         xy = np.rint(clip.tracks[seen, t]).astype(np.int64)
         inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
         rows = np.flatnonzero(seen)[inside]
-        hits[rows, t] = mask[xy[inside, 1], xy[inside, 0]] > 0
-    return hits
+        values[rows, t] = image[xy[inside, 1], xy[inside, 0]]
+    return values
+
+
+def followed_instances(instances: np.ndarray, scored: np.ndarray, labels: np.ndarray) -> InstanceFollow:
+    """How the published instances ((N, F) ids at the points, ``values_at_points``) follow each moving object
+    (``labels`` (N,) >= 2) over the (N, F) ``scored`` point-frames (eval/identities.py)."""
+    follow = InstanceFollow()
+    for t in range(scored.shape[1]):
+        points = scored[:, t] & (labels >= 2)
+        if points.any():
+            follow.add(instances[points, t], labels[points], np.unique(labels[points]))
+    return follow
 
 
 def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.ndarray) -> tuple[int, int]:
@@ -97,6 +118,7 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
     can be read. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline)."""
     n = min(len(frame_paths), clip.visible.shape[1])
     masks: list[np.ndarray | None] = []
+    instances: list[np.ndarray | None] = []
     seconds = []
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
@@ -104,22 +126,26 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
             frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
             if frame is None:
                 masks.append(None)
+                instances.append(None)
                 continue
             pacer.wait()
             result = pipeline.process(frame, t * FRAME_PERIOD_NS, next_frame_at=pacer.next_due)
             masks.append(result.masks.dynamic)
+            instances.append(result.masks.instance_labels)
             seconds.append(result.seconds)
     unread = np.array([mask is None for mask in masks])
     if unread.all():
         return None
     blank = np.zeros_like(next(mask for mask in masks if mask is not None))
-    hits = points_in_masks([blank if mask is None else mask for mask in masks],
-                           Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels))
+    shown = Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels)
+    hits = points_in_masks([blank if mask is None else mask for mask in masks], shown)
+    ids = values_at_points([blank if labels is None else labels for labels in instances], shown)
     scored = clip.visible[:, :n] & ~unread
     scored[:, 0] = False
     moving = (clip.labels >= 2)[:, None] & scored
     static = (clip.labels == 1)[:, None] & scored
     object_frames, detected = object_frame_detections(hits, scored, clip.labels)
+    follow = followed_instances(ids, scored, clip.labels)
     return ClipMaskScore(
         clip=clip.name, frames=n, moving_points=int(moving.sum()), static_points=int(static.sum()),
         moving_recall=float(hits[moving].mean()) if moving.any() else float("nan"),
@@ -127,6 +153,7 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
         ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"),
         moving_hits=int(hits[moving].sum()), static_hits=int(hits[static].sum()),
         object_frames=object_frames, object_frames_detected=detected,
+        id_switches=sum(follow.switches.values()), shared_object_frames=sum(follow.shared.values()),
         unreadable=[frame_paths[t].name for t in np.flatnonzero(unread)])
 
 
@@ -153,13 +180,16 @@ def ratio(numerator: int, denominator: int) -> float:
 
 
 def pooled(scores: list[ClipMaskScore]) -> dict[str, float | int]:
-    """Recall, static points flagged and object-frames detected over every scored point-frame (object-frame)
-    of every clip, so that long, densely labelled clips weigh more than in the per-clip means."""
+    """Recall, static points flagged, object-frames detected, the instances' id switches and shared object-frames
+    over every scored point-frame (object-frame) of every clip, so that long, densely labelled clips weigh more
+    than in the per-clip means."""
     object_frames = sum(s.object_frames for s in scores)
     return {"recall": ratio(sum(s.moving_hits for s in scores), sum(s.moving_points for s in scores)),
             "static_flagged": ratio(sum(s.static_hits for s in scores), sum(s.static_points for s in scores)),
             "object_frames": object_frames,
-            "object_frames_detected": ratio(sum(s.object_frames_detected for s in scores), object_frames)}
+            "object_frames_detected": ratio(sum(s.object_frames_detected for s in scores), object_frames),
+            "id_switches": sum(s.id_switches for s in scores),
+            "shared_object_frames": sum(s.shared_object_frames for s in scores)}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -200,6 +230,8 @@ def run(args: argparse.Namespace) -> int:
           f"static points flagged {100 * totals['static_flagged']:.2f} %")
     print("object-frames detected (at least half of their visible points in the mask): "
           f"{100 * totals['object_frames_detected']:.1f} % of {totals['object_frames']}")
+    print(f"instances at the moving objects' points: {totals['id_switches']} id switches, "
+          f"{totals['shared_object_frames']} object-frames whose instance holds another moving object")
     if without:
         print(f"skipped (no readable frames): {', '.join(without)}")
     for s in scores:

@@ -75,15 +75,72 @@ def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cu
     return inter / np.maximum(union, 1.0)
 
 
+def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, share: float) -> np.ndarray:
+    """``regions`` with every region that took in two or more eligible regions of the frame before split between
+    them: each of its pixels goes to the nearest pixel of those regions inside it (cv2.distanceTransformWithLabels).
+
+    Two movers whose regions touch come out of the evidence as one connected region; the frame before still had
+    them apart, and each of them lies mostly inside the joined one.
+
+    Args:
+        regions: (H, W) int32, 0 = none and 1..R each present.
+        previous: (H, W) int, the frame before's regions (0 = none, 1..P) at this frame (moved along the flow).
+        eligible: (P + 1,) bool, which of ``previous``'s regions may be kept apart (the first, none, is ignored).
+        share: the least share of an eligible region's pixels inside one region of ``regions`` that takes it in.
+
+    Returns:
+        (H, W) int32: the regions, the parts of a split one numbered R + 1 on (its first part keeps its number).
+    """
+    n_cur = int(regions.max(initial=0))
+    n_prev = eligible.size - 1
+    if n_cur == 0 or n_prev < 2:
+        return regions
+    joint = np.bincount(previous.ravel().astype(np.int64) * (n_cur + 1) + regions.ravel(),
+                        minlength=(n_prev + 1) * (n_cur + 1)).reshape(n_prev + 1, n_cur + 1)
+    host = joint[:, 1:].argmax(axis=1) + 1
+    taken = eligible & (joint[np.arange(n_prev + 1), host] >= share * np.maximum(joint.sum(axis=1), 1))
+    taken[0] = False
+    crowded = np.flatnonzero(np.bincount(host[taken], minlength=n_cur + 1) >= 2)
+    if crowded.size == 0:
+        return regions
+    out = regions.copy()
+    next_label = n_cur + 1
+    for region in crowded:
+        ys, xs = np.nonzero(regions == region)
+        window = np.s_[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
+        inside = regions[window] == region
+        seeds = np.where(inside & taken[previous[window]], previous[window], 0)
+        nearest = nearest_seed(seeds)
+        parts = np.unique(nearest[inside])
+        numbers = np.zeros(int(parts.max()) + 1, dtype=np.int32)
+        numbers[parts] = np.concatenate([[region], np.arange(next_label, next_label + parts.size - 1)])
+        next_label += parts.size - 1
+        out[window][inside] = numbers[nearest[inside]]
+    return out
+
+
+def nearest_seed(seeds: np.ndarray) -> np.ndarray:
+    """(h, w) int: each pixel's nearest non-zero value of the (h, w) int ``seeds`` (at least one), by Euclidean
+    distance (cv2.distanceTransformWithLabels, its labels one per seed pixel)."""
+    _, pixel = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 5,
+                                               labelType=cv2.DIST_LABEL_PIXEL)
+    value = np.zeros(int(pixel.max()) + 1, dtype=seeds.dtype)
+    value[pixel[seeds != 0]] = seeds[seeds != 0]
+    return value[pixel]
+
+
 class InstanceTracker:
     """Gives regions ids that persist across frames (IoU matching with the previous frame).
 
     ``ages`` counts, per id, the consecutive frames it has been seen, so callers can ignore one-frame
-    flickers (flow failures) and keep only regions that persist.
+    flickers (flow failures) and keep only regions that persist. With ``keep_apart_after`` > 0, ``update`` keeps
+    two regions seen that many frames apart when they join (``kept_apart``): each keeps its id.
     """
 
-    def __init__(self, min_iou: float = 0.2) -> None:
+    def __init__(self, min_iou: float = 0.2, keep_apart_after: int = 0, keep_apart_share: float = 0.5) -> None:
         self.min_iou = min_iou
+        self.keep_apart_after = keep_apart_after
+        self.keep_apart_share = keep_apart_share
         # The previous frame's regions as given (0..R) and the id each got: matching against them needs no
         # renumbering of the previous ids' map.
         self._previous: tuple[np.ndarray, np.ndarray] | None = None
@@ -98,8 +155,14 @@ class InstanceTracker:
 
     def update(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
         """Relabel ``regions`` ((H, W) int32, 0 = none and 1..R each present) with persistent ids; returns
-        (H, W) int32. ``flow``: see ``assign``."""
-        return np.take(self.assign(regions, flow), regions)
+        (H, W) int32. ``flow``: see ``assign``. With ``keep_apart_after``, a region that took in two or more of the
+        frame before's regions, each seen that many frames, is split between them first."""
+        previous = self._moved_previous(regions.shape, flow)
+        if self.keep_apart_after > 0 and previous is not None:
+            old_ids = np.concatenate([[0], self._previous[1]])
+            eligible = np.array([self.ages.get(int(i), 0) >= self.keep_apart_after for i in old_ids])
+            regions = kept_apart(regions, previous, eligible, self.keep_apart_share)
+        return np.take(self._matched(regions, previous), regions)
 
     def assign(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
         """The persistent id of each region of ``regions`` (``update``'s input) as a (R + 1,) int32 table, 0 for
@@ -107,12 +170,24 @@ class InstanceTracker:
         frame back to the one before, which moves the previous regions to this frame before they are matched (a
         looming or fast object overlaps too little of where it was to keep its id otherwise); None: matched
         where they were."""
+        return self._matched(regions, self._moved_previous(regions.shape, flow))
+
+    def _moved_previous(self, shape: tuple[int, int], flow: np.ndarray | None) -> np.ndarray | None:
+        """The previous frame's regions (0..P) at this frame: moved along ``flow`` when it fits; None when there
+        are none of this ``shape``."""
+        if self._previous is None or self._previous[0].shape != shape:
+            return None
+        previous, previous_ids = self._previous
+        if flow is not None and flow.shape[:2] == shape and previous_ids.size < 2**16:
+            return pulled_forward(previous.astype(np.uint16), flow, 0).astype(np.int32)
+        return previous
+
+    def _matched(self, regions: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+        """``assign``'s table, given the previous regions at this frame (``_moved_previous``)."""
         n_cur = int(regions.max(initial=0))
         ids = np.zeros(n_cur + 1, dtype=np.int32)
-        if self._previous is not None and self._previous[0].shape == regions.shape and n_cur:
-            previous, previous_ids = self._previous
-            if flow is not None and flow.shape[:2] == regions.shape and previous_ids.size < 2**16:
-                previous = pulled_forward(previous.astype(np.uint16), flow, 0).astype(np.int32)
+        if previous is not None and n_cur:
+            previous_ids = self._previous[1]
             if previous_ids.size:
                 iou = mask_iou_matrix(previous, regions, previous_ids.size, n_cur)
                 rows, cols = linear_sum_assignment(-iou)

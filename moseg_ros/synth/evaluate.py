@@ -7,7 +7,9 @@ pixels lie in the dynamic mask. With --instances (always for object_level) the e
 upstream instances (what `use_instances` gives the node) and an object-frame is flagged when its id is among the
 frame's dynamic ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
 as name:flagged/seen, * = moving), the totals per kind of object and overall, and how the published masks
-cover the moving objects' pixels over the scored frames (IoU, precision, recall); --json writes them.
+cover the moving objects' pixels over the scored frames (IoU, precision, recall), and how the published instances
+follow the movers (eval/identities.py: id switches, and object-frames whose instance holds another mover too);
+--json writes them.
 With --rate a camera running at that rate sees the same scenes (the same motion per second, so a 30 Hz camera
 sees a third of it per frame), and every frame it takes is scored.
 """
@@ -23,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
@@ -59,6 +62,7 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
     unknown = [obj for obj, name in sequence.object_names.items() if name.startswith(withheld)] if withheld else []
     flagged: Counter[int] = Counter()
     seen: Counter[int] = Counter()
+    follow = InstanceFollow()
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t, frame in enumerate(sequence.frames):
@@ -82,8 +86,12 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
             for obj, flag in zip(ids[counted].tolist(), hit[counted].tolist()):
                 seen[obj] += 1
                 flagged[obj] += int(flag)
+            follow.add(result.masks.instance_labels, frame.instances,
+                       ids[counted & np.isin(ids, list(sequence.dynamic_ids))])
     return {sequence.object_names[obj]: {"moving": obj in sequence.dynamic_ids, "flagged": flagged[obj],
-                                         "seen": seen[obj]} for obj in sorted(seen)}
+                                         "seen": seen[obj], "id_switches": follow.switches[obj],
+                                         "shared": follow.shared[obj]}
+            for obj in sorted(seen)}
 
 
 def pixel_counts(mask: np.ndarray, truth: np.ndarray) -> dict[str, int]:
@@ -106,14 +114,18 @@ def _share(part: int, whole: int) -> float:
 
 
 def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
-    """Object-frames flagged and counted, moving and static, over scored scenes."""
+    """Object-frames flagged and counted, moving and static, and the moving objects' id switches and shared
+    object-frames (eval/identities.py), over scored scenes."""
     out = Counter()
     for scene in scenes:
         for obj in scene.values():
             kind = "moving" if obj["moving"] else "static"
             out[f"{kind}_flagged"] += int(obj["flagged"])
             out[f"{kind}_seen"] += int(obj["seen"])
-    counts = {key: out[key] for key in ("moving_flagged", "moving_seen", "static_flagged", "static_seen")}
+            out["moving_id_switches"] += int(obj["id_switches"])  # followed for the moving objects only
+            out["moving_shared"] += int(obj["shared"])
+    counts = {key: out[key] for key in ("moving_flagged", "moving_seen", "static_flagged", "static_seen",
+                                        "moving_id_switches", "moving_shared")}
     return {**counts, "moving_flagged_fraction": out["moving_flagged"] / max(out["moving_seen"], 1),
             "static_flagged_fraction": out["static_flagged"] / max(out["static_seen"], 1)}
 
@@ -196,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
           f"{args.rate:g} Hz)")
     print(f"moving pixels: IoU {total['pixel_iou']:.3f}, precision {total['pixel_precision']:.3f}, "
           f"recall {total['pixel_recall']:.3f} (the published masks over the scored frames)")
+    print(f"instances: {total['moving_id_switches']} id switches of the movers' instances, {total['moving_shared']} "
+          f"moving object-frames whose instance holds another mover")
     if args.json:
         args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live,
                                          "rate_hz": args.rate}, indent=2))
