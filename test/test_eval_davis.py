@@ -8,10 +8,12 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import PIL.Image
+import pytest
 
 from conftest import shared_data, textured_frames
 from moseg_ros.cli import main as moseg
-from moseg_ros.eval.davis import pair_annotations
+from moseg_ros.eval.davis import pair_annotations, read_annotation
 
 HEIGHT, WIDTH = 160, 320  # at 96x160 the default pipeline flags nothing on these frames (measured)
 
@@ -110,13 +112,101 @@ def test_max_frames_and_a_folder_without_clips(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_annotations_pair_by_stem_or_by_order():
+def test_annotations_pair_by_stem_by_order_or_by_number():
     images = [Path(f"{i:05d}.jpg") for i in range(4)]
     # Annotated on a subset of the frames: the others have none.
     assert pair_annotations(images, [Path("00000.png"), Path("00002.png")]) == [
         Path("00000.png"), None, Path("00002.png"), None]
-    # No stem in common: sorted order, frames beyond the last annotation have none.
-    assert pair_annotations(images, [Path("a.png"), Path("b.png")]) == [Path("a.png"), Path("b.png"), None, None]
+    # No stem in common, as many annotations as frames: by order.
+    annotations = [Path(f"gt_{c}.png") for c in "abcd"]
+    assert pair_annotations(images, annotations) == annotations
+    # No stem in common and fewer annotations: by the number in their names, none without one.
+    assert pair_annotations(images, [Path("m0.png"), Path("m2.png")]) == [Path("m0.png"), None, Path("m2.png"), None]
+    assert pair_annotations(images, [Path("a.png"), Path("b.png")]) == [None] * 4
+
+
+class TestReadAnnotation:
+    def test_a_palette_image_counts_its_indices_not_its_colours(self, tmp_path):
+        indices = np.zeros((4, 6), dtype=np.uint8)
+        indices[1:3, 2:5] = 1
+        image = PIL.Image.fromarray(indices, mode="P")
+        image.putpalette([255, 255, 255, 0, 0, 0] + [0] * 762)  # index 0 white: the background's colour
+        image.save(tmp_path / "p.png")
+        np.testing.assert_array_equal(read_annotation(tmp_path / "p.png"), indices > 0)
+
+    def test_an_alpha_channel_is_not_the_object(self, tmp_path):
+        rgba = np.zeros((4, 6, 4), dtype=np.uint8)
+        rgba[..., 3] = 255  # opaque everywhere
+        rgba[2, 3, :3] = 200
+        PIL.Image.fromarray(rgba, mode="RGBA").save(tmp_path / "a.png")
+        grey_alpha = np.stack([rgba[..., 0], rgba[..., 3]], axis=-1)
+        PIL.Image.fromarray(grey_alpha, mode="LA").save(tmp_path / "la.png")
+        for name in ("a.png", "la.png"):
+            mask = read_annotation(tmp_path / name)
+            assert mask.shape == (4, 6) and mask.sum() == 1 and mask[2, 3]
+
+    def test_a_damaged_file_is_an_error(self, tmp_path):
+        (tmp_path / "bad.png").write_bytes(b"not a png")
+        with pytest.raises(ValueError, match="cannot read annotation"):
+            read_annotation(tmp_path / "bad.png")
+
+
+def test_frames_named_by_plain_numbers_are_taken_in_their_order(tmp_path):
+    """0.jpg ... 11.jpg: 10.jpg after 9.jpg, not after 1.jpg; hidden files left out. The same J as zero-padded."""
+    runs = {}
+    for kind, names in (("padded", [f"{i:05d}" for i in range(12)]), ("plain", [str(i) for i in range(12)])):
+        root = tmp_path / kind
+        _write_clip(root, "block", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+        (root / "JPEGImages" / "480p" / "block" / "._0.jpg").write_bytes(b"a macOS companion file")
+        assert moseg(["eval", "davis", str(root), "--json", str(tmp_path / f"{kind}.json")]) == 0
+        runs[kind] = json.loads((tmp_path / f"{kind}.json").read_text())["clips"][0]
+    assert runs["plain"]["scored_frames"] == runs["padded"]["scored_frames"] == 11
+    assert runs["plain"]["unreadable"] == []
+    assert runs["plain"]["j"] == runs["padded"]["j"] > 0.3
+
+
+def test_annotations_at_another_size_are_scored_at_theirs_or_listed(tmp_path, capsys):
+    """Frames resized apart from their annotations: the same aspect is scored at the annotation's size, another
+    aspect is listed and not scored (no traceback)."""
+    root = tmp_path / "davis"
+    names = [f"{i:05d}" for i in range(6)]
+    _write_clip(root, "scaled", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+    _write_clip(root, "squeezed", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+    for clip, size in (("scaled", (2 * WIDTH, 2 * HEIGHT)), ("squeezed", (WIDTH, 2 * HEIGHT))):
+        for path in (root / "Annotations" / "480p" / clip).iterdir():
+            cv2.imwrite(str(path), cv2.resize(cv2.imread(str(path), cv2.IMREAD_GRAYSCALE), size,
+                                              interpolation=cv2.INTER_NEAREST))
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    clip, = result["clips"]
+    assert clip["clip"] == "scaled" and clip["scored_frames"] == 5 and clip["j"] > 0.3
+    assert result["clips_skipped"] == ["squeezed"]
+    assert "skipped" in capsys.readouterr().out
+
+
+def test_the_first_frame_the_pipeline_gets_is_not_scored_and_a_truncated_frame_is_unreadable(tmp_path):
+    root = tmp_path / "davis"
+    names = [f"{i:05d}" for i in range(7)]
+    _write_clip(root, "damaged", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+    frames = root / "JPEGImages" / "480p" / "damaged"
+    (frames / "00000.jpg").write_bytes(b"")
+    whole = (frames / "00004.jpg").read_bytes()
+    (frames / "00004.jpg").write_bytes(whole[:len(whole) // 3])  # OpenCV would decode it half grey
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 0
+    clip, = json.loads(out.read_text())["clips"]
+    assert clip["unreadable"] == ["00000.jpg", "00004.jpg"]
+    assert clip["scored_frames"] == 4  # frames 2, 3, 5 and 6: frame 1 is the pipeline's first
+
+
+def test_a_clip_without_a_scored_frame_is_skipped(tmp_path, capsys):
+    root = tmp_path / "davis"
+    _write_clip(root, "one-frame", ["00000.jpg"], ["00000.png"], seed=0)
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 2
+    printed = capsys.readouterr().out
+    assert "skipped: one-frame" in printed and "nan" not in printed and not out.exists()
 
 
 def _real_clip(tmp_path: Path, clip: str, frames: int) -> dict:

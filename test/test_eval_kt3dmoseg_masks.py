@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import json
 from dataclasses import replace
+from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from conftest import shared_data
 from moseg_ros.cli import main as moseg
-from moseg_ros.eval.kt3dmoseg_masks import ClipMaskScore, object_frame_detections, pooled
+from moseg_ros.eval.kt3dmoseg_masks import (ClipMaskScore, holds_points, object_frame_detections, pooled,
+                                            trajectory_frames)
 from moseg_ros.methods import moving_objects
 
 
@@ -115,6 +118,101 @@ def test_clip_files_of_any_name(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "has readable frames" in printed and "skipped: Seq020_Clip01" in printed and "nan" not in printed
     assert not (tmp_path / "f.json").exists()
+
+
+def _copied(tmp_path, clip, rename_frame=None, edit=None):
+    """A folder with ``clip``'s .mat linked and its frames copied, each renamed by ``rename_frame(index, path)``
+    (None: left out) and its pixels passed through ``edit(index, image)``."""
+    root = _subset(tmp_path, [], [clip])
+    frames = root / "OriginalSequences" / clip
+    frames.mkdir()
+    for index, path in enumerate(sorted(shared_data("kt3dmoseg", "OriginalSequences", clip).glob("*.png"))):
+        name = rename_frame(index, path) if rename_frame else path.name
+        if name is None:
+            continue
+        if edit is None:
+            (frames / name).write_bytes(path.read_bytes())
+        else:
+            cv2.imwrite(str(frames / name), edit(index, cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)))
+    return root
+
+
+def _scored(tmp_path, root, name):
+    assert moseg(["eval", "kt3dmoseg-masks", str(root), "--json", str(tmp_path / f"{name}.json")]) == 0
+    row, = json.loads((tmp_path / f"{name}.json").read_text())["clips"]
+    return row
+
+
+def test_frames_named_by_plain_numbers_or_as_jpeg_score_as_the_layout(tmp_path):
+    """Seq070_Clip01 (10 frames) as 000001.png..., as 0.png ... 9.png, as 1.png ... 10.png (10 after 9, not
+    after 1) and as JPEG: the same frames for the same trajectory frames."""
+    reference = _scored(tmp_path, _subset(tmp_path / "kt", ["Seq070_Clip01"]), "layout")
+    for name, rename in (("from0", lambda i, p: f"{i}.png"), ("from1", lambda i, p: f"{i + 1}.png")):
+        row = _scored(tmp_path, _copied(tmp_path / name, "Seq070_Clip01", rename), name)
+        assert row["moving_recall"] == reference["moving_recall"]
+        assert row["static_flagged"] == reference["static_flagged"] and row["missing"] == []
+    as_jpeg = _scored(tmp_path, _copied(tmp_path / "jpeg", "Seq070_Clip01", lambda i, p: f"{p.stem}.jpg",
+                                        lambda i, image: image), "jpeg")
+    assert as_jpeg["object_frames"] == reference["object_frames"]
+    assert as_jpeg["moving_recall"] == pytest.approx(reference["moving_recall"], abs=0.1)
+
+
+def test_a_missing_frame_shifts_no_other(tmp_path, capsys):
+    """Seq070_Clip01 without its fifth frame (000005.png, trajectory frame 4): listed, and the frames after it
+    keep their trajectory frames (paired by position, each would be scored against the frame before)."""
+    reference = _scored(tmp_path, _subset(tmp_path / "kt", ["Seq070_Clip01"]), "layout")
+    root = _copied(tmp_path / "gap", "Seq070_Clip01", lambda i, p: None if i == 4 else p.name)
+    row = _scored(tmp_path, root, "gap")
+    assert row["missing"] == [4] and row["frames"] == 10
+    assert row["object_frames"] == reference["object_frames"] - 1
+    assert row["moving_recall"] > 0.5 and row["static_flagged"] < 0.05
+    assert "trajectory frames without a file (from 0): 4" in capsys.readouterr().out
+
+
+def test_frames_not_of_the_trajectories_size_are_listed_not_scored(tmp_path, capsys):
+    """Resized frames do not hold the trajectories: the clip is skipped with the reason; one smaller frame in a
+    clip is listed and the others are scored (no traceback)."""
+    half = _copied(tmp_path / "half", "Seq070_Clip01", edit=lambda i, image: cv2.resize(image, (621, 188)))
+    assert moseg(["eval", "kt3dmoseg-masks", str(half)]) == 2
+    assert "do not hold its trajectories" in capsys.readouterr().out
+    double = _copied(tmp_path / "double", "Seq070_Clip01", edit=lambda i, image: cv2.resize(image, (2484, 750)))
+    assert moseg(["eval", "kt3dmoseg-masks", str(double)]) == 2
+    one_small = _copied(tmp_path / "one", "Seq070_Clip01",
+                        edit=lambda i, image: image[:300, :900] if i == 5 else image)
+    row = _scored(tmp_path, one_small, "one")
+    assert row["mismatched"] == ["000006.png (900x300)"] and row["moving_recall"] > 0.5
+
+
+def test_the_first_frame_the_pipeline_gets_is_not_scored(tmp_path):
+    """With Seq070_Clip01's first file damaged the pipeline's first frame is trajectory frame 1: not scored."""
+    reference = _scored(tmp_path, _subset(tmp_path / "kt", ["Seq070_Clip01"]), "layout")
+    root = _copied(tmp_path / "first", "Seq070_Clip01")
+    (root / "OriginalSequences" / "Seq070_Clip01" / "000001.png").write_bytes(b"")
+    row = _scored(tmp_path, root, "first")
+    assert row["unreadable"] == ["000001.png"] and row["object_frames"] == reference["object_frames"] - 1
+
+
+class TestTrajectoryFrames:
+    def test_by_number_from_one_or_from_zero(self):
+        files = [Path("000001.png"), Path("000002.png"), Path("000004.png")]
+        assert trajectory_frames(files, 4) == [files[0], files[1], None, files[2]]
+        zero = [Path("0.png"), Path("1.png"), Path("2.png")]
+        assert trajectory_frames(zero, 2) == zero[:2]  # beyond the trajectories: not used
+
+    def test_names_without_numbers_or_with_repeated_ones_go_by_order(self):
+        files = [Path("a.png"), Path("b.png")]
+        assert trajectory_frames(files, 3) == [*files, None]
+        twice = [Path("left_1.png"), Path("right_1.png")]
+        assert trajectory_frames(twice, 2) == twice
+
+
+class TestHoldsPoints:
+    def test_known_values(self):
+        extent = np.array([1240.5, 373.6])
+        assert holds_points((375, 1242), extent) and holds_points((375, 1242, 3), extent)
+        assert not holds_points((188, 621), extent)  # smaller than the points reach
+        assert not holds_points((750, 2484), extent)  # twice their extent both ways
+        assert holds_points((375, 1500), np.array([1050.0, 370.0]))  # points short of the right side
 
 
 def test_object_frames_need_half_of_their_visible_points():

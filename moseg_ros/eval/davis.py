@@ -1,33 +1,40 @@
 """Score the node's dynamic masks on DAVIS-2016 clips against each clip's annotated moving object.
 
 Layout: ``DIR/JPEGImages/480p/<clip>/*.jpg`` (or .png) and ``DIR/Annotations/480p/<clip>/*.png``, where a
-non-zero annotation pixel belongs to the moving object. Frames are taken in sorted file-name order; an
-annotation is paired with the image of the same stem or, when no stems match, by sorted order. For every
-clip that has annotations, the pipeline runs over the frames exactly as the node would (stamps at 24 Hz) and each
-annotated frame's dynamic mask is compared with its annotation. The first frame of each clip (no motion
-evidence yet) is not scored.
+non-zero annotation pixel (a palette image's index, any colour channel; not its alpha) belongs to the moving
+object. Frames are taken in the natural order of their names (2.jpg before 10.jpg; hidden files left out) and
+decoded as the node decodes a compressed image (a truncated file is unreadable); an annotation is paired with the
+image of the same stem or, when no stems match, by order when there are as many as frames, else by the number in
+their names. For every clip that has annotations, the pipeline runs over the frames exactly as the node would
+(stamps at 24 Hz) and each annotated frame's dynamic mask is compared with its annotation, at the annotation's
+size when that differs from the frame's by a scale alone (else the frame is listed and not scored). The first
+frame the pipeline gets of each clip (no motion evidence yet) is not scored.
 
 Reported per clip: J (the DAVIS region measure: mean over frames of the IoU, 1 where both masks are empty),
 pixel precision and recall pooled over the clip's frames, and ms per frame (the first frame excluded). The
 mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
 ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
-positives. Clips without annotations (or without frames) are listed and skipped. A frame or annotation that
-cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees such a frame, and
-it is not scored), and listed under its clip (``unreadable``).
+positives. Clips without annotations, without frames or without a scored frame are listed and skipped. A frame
+or annotation that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees
+such a frame, and it is not scored), and listed under its clip (``unreadable``). A figure with nothing to count
+is NaN, written as null in the JSON.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
+import PIL.Image
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.masks import mask_iou
+from moseg_ros.eval.report import write_json
+from moseg_ros.io.files import frame_number, image_files, read_frame
+from moseg_ros.io.image import ImageDecodeError
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer
@@ -35,6 +42,9 @@ from moseg_ros.timing import Pacer
 FRAME_PERIOD_NS = 1_000_000_000 / 24  # DAVIS clips are 24 fps video (Perazzi et al., CVPR 2016)
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 RESOLUTION = "480p"
+# An annotation of another size than its frame is scored against the mask resized to it when their aspect ratios
+# agree this closely (a clip's frames and annotations resized apart: 854x480 against 640x360 is 0.1 %).
+ASPECT_TOLERANCE = 0.01
 
 
 @dataclass
@@ -52,20 +62,13 @@ class ClipScore:
     false_negatives: int
     ms_per_frame: float
     unreadable: list[str] = field(default_factory=list)
+    mismatched: list[str] = field(default_factory=list)
 
 
 def clip_names(root: Path) -> list[str]:
     """Names of the clip folders under root/JPEGImages/480p, sorted."""
     folder = root / "JPEGImages" / RESOLUTION
     return sorted(p.name for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
-
-
-def files_with_suffix(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
-    """Files of folder whose suffix is one of suffixes (any case), sorted by name; [] if folder is absent."""
-    if not folder.is_dir():
-        return []
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in suffixes),
-                  key=lambda p: p.name)
 
 
 def pair_annotations(images: list[Path], annotations: list[Path]) -> list[Path | None]:
@@ -77,28 +80,43 @@ def pair_annotations(images: list[Path], annotations: list[Path]) -> list[Path |
 
     Returns:
         One entry per image: the annotation with the same stem when any stems match (so a clip annotated on a
-        subset of frames is paired correctly), otherwise the annotation at the same sorted position.
+        subset of frames is paired correctly); otherwise, with as many annotations as images, the one at the same
+        position; otherwise the one with the same number in its name (``frame_number``); None where none is.
     """
     by_stem = {p.stem: p for p in annotations}
     if by_stem.keys() & {p.stem for p in images}:
         return [by_stem.get(p.stem) for p in images]
-    return [annotations[i] if i < len(annotations) else None for i in range(len(images))]
-
-
-def read_rgb(path: Path) -> np.ndarray:
-    """(H, W, 3) uint8 RGB frame (cv2 decodes to BGR; the pipeline takes RGB)."""
-    frame = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if frame is None:
-        raise ValueError(f"cannot read frame {path}")
-    return cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+    if len(annotations) == len(images):
+        return list(annotations)
+    by_number = {frame_number(p): p for p in annotations}
+    return [by_number.get(number) if number is not None else None for number in map(frame_number, images)]
 
 
 def read_annotation(path: Path) -> np.ndarray:
-    """(H, W) bool object mask: non-zero in any channel (grey 0/255 in DAVIS-2016, palette colours elsewhere)."""
-    mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if mask is None:
-        raise ValueError(f"cannot read annotation {path}")
-    return mask.any(axis=2) if mask.ndim == 3 else mask > 0
+    """(H, W) bool object mask: a palette image's non-zero indices, any other image's pixels non-zero in a
+    colour channel (grey 0/255 in DAVIS-2016, colours elsewhere; an alpha channel is not the object). Raises
+    ImageDecodeError when the file cannot be read."""
+    try:
+        with PIL.Image.open(path) as image:
+            image.load()
+            pixels = np.asarray(image)  # a palette image's indices, not its colours
+            if image.mode.endswith(("A", "a")):  # RGBA, LA, PA...: the last band is the alpha
+                pixels = pixels[..., :-1]
+    except Exception as error:  # Pillow raises OSError, EOFError, SyntaxError... on damaged files
+        raise ImageDecodeError(f"cannot read annotation {path}: {error}") from None
+    return pixels.any(axis=2) if pixels.ndim == 3 else pixels > 0
+
+
+def at_annotation_size(predicted: np.ndarray, truth_shape: tuple[int, int]) -> np.ndarray | None:
+    """(H, W) bool: the (h, w) bool ``predicted`` mask at the annotation's (H, W) shape (nearest), when their
+    aspect ratios agree within ``ASPECT_TOLERANCE``; None when they do not (not the annotation of this frame)."""
+    if predicted.shape == truth_shape:
+        return predicted
+    aspect = (predicted.shape[1] / predicted.shape[0]) / (truth_shape[1] / truth_shape[0])
+    if abs(aspect - 1.0) > ASPECT_TOLERANCE:
+        return None
+    resized = cv2.resize(predicted.astype(np.uint8), truth_shape[::-1], interpolation=cv2.INTER_NEAREST)
+    return resized > 0
 
 
 def pooled_ratio(numerator: int, denominator: int) -> float:
@@ -108,54 +126,55 @@ def pooled_ratio(numerator: int, denominator: int) -> float:
 
 def score_clip(name: str, images: list[Path], annotations: list[Path | None],
                config: PipelineConfig, live: float = 0.0) -> ClipScore | None:
-    """Run the pipeline over the clip's frames and compare each annotated frame's mask (from frame 1) with it;
-    None when no frame can be read. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0:
-    offline)."""
-    ious, seconds, unreadable = [], [], []
+    """Run the pipeline over the clip's frames and compare each annotated frame's mask (after the first frame the
+    pipeline gets) with it; None when no frame can be read or none is scored. ``live``: a camera's rate (Hz) to
+    run the pipeline at as the node does (0: offline)."""
+    ious, seconds, unreadable, mismatched = [], [], [], []
     tp = fp = fn = 0
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t, (image, annotation) in enumerate(zip(images, annotations)):
             try:
-                frame = read_rgb(image)
+                frame = read_frame(image)
             except ValueError:
                 unreadable.append(image.name)
                 continue
             pacer.wait()
             result = pipeline.process(frame, round(t * FRAME_PERIOD_NS), next_frame_at=pacer.next_due)
             seconds.append(result.seconds)
-            if t == 0 or annotation is None:
+            if len(seconds) == 1 or annotation is None:
                 continue
             try:
                 truth = read_annotation(annotation)
             except ValueError:
                 unreadable.append(annotation.name)
                 continue
-            predicted = result.masks.dynamic > 0
-            if truth.shape != predicted.shape:
-                raise ValueError(f"annotation {annotation} is {truth.shape}, its frame {image} {predicted.shape}")
+            predicted = at_annotation_size(result.masks.dynamic > 0, truth.shape)
+            if predicted is None:
+                mismatched.append(f"{annotation.name} ({truth.shape[1]}x{truth.shape[0]} against "
+                                  f"{frame.shape[1]}x{frame.shape[0]})")
+                continue
             ious.append(mask_iou(predicted, truth))
             tp += np.count_nonzero(predicted & truth)
             fp += np.count_nonzero(predicted & ~truth)
             fn += np.count_nonzero(~predicted & truth)
-    if not seconds:
+    if not ious:
         return None
     return ClipScore(
-        clip=name, frames=len(images), scored_frames=len(ious),
-        j=float(np.mean(ious)) if ious else float("nan"),
+        clip=name, frames=len(images), scored_frames=len(ious), j=float(np.mean(ious)),
         precision=pooled_ratio(tp, tp + fp), recall=pooled_ratio(tp, tp + fn),
         true_positives=int(tp), false_positives=int(fp), false_negatives=int(fn),
-        ms_per_frame=1e3 * float(np.mean(seconds[1:])) if len(seconds) > 1 else float("nan"), unreadable=unreadable)
+        ms_per_frame=1e3 * float(np.mean(seconds[1:])), unreadable=unreadable, mismatched=mismatched)
 
 
 def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None,
              live: float = 0.0) -> tuple[list[ClipScore], list[str]]:
     """Score every clip of ``root`` that has readable frames and annotations (``live``: see ``score_clip``);
-    returns the scores and the skipped clips."""
+    returns the scores and the skipped clips (no annotations, no readable frame or no frame scored)."""
     scores, skipped = [], []
     for name in clip_names(root):
-        images = files_with_suffix(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
-        annotations = files_with_suffix(root / "Annotations" / RESOLUTION / name, (".png",))
+        images = image_files(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
+        annotations = image_files(root / "Annotations" / RESOLUTION / name, (".png",))
         score = (score_clip(name, images, pair_annotations(images, annotations), config, live)
                  if images and annotations else None)
         if score is None:
@@ -220,12 +239,13 @@ def run(args: argparse.Namespace) -> int:
           f"{100 * means['precision']:.1f} %, recall {100 * means['recall']:.1f} %, "
           f"{means['ms_per_frame']:.1f} ms per frame ({config.method})")
     if skipped:
-        print(f"skipped (no annotations or no readable frames): {', '.join(skipped)}")
+        print(f"skipped (no annotations, no readable frames or no frame scored): {', '.join(skipped)}")
     for s in scores:
         if s.unreadable:
             print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
+        if s.mismatched:
+            print(f"{s.clip}: annotations not of their frame's aspect, not scored: {', '.join(s.mismatched)}")
     if args.json:
-        report = {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
-                  "config": asdict(config), "live_hz": args.live}
-        args.json.write_text(json.dumps(report, indent=2) + "\n")
+        write_json(args.json, {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
+                               "config": asdict(config), "live_hz": args.live})
     return 0

@@ -1,7 +1,9 @@
 """Score the node's dynamic masks on real KITTI street frames at KT3DMoSeg's labelled points.
 
-For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``), the pipeline runs over the frames
-exactly as the node would, and each labelled trajectory point visible in a frame is looked up in that frame's
+For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``, or .jpg; each file is the trajectory
+frame of the number in its name, ``%06d.png`` being frame number - 1 (from 0 when a name holds 0), or in the
+natural order of names without numbers), the pipeline runs over the frames exactly as the node would, and each
+labelled trajectory point visible in a frame is looked up in that frame's
 dynamic mask (``mask[round(y), round(x)]``). Label 1 is the static background, labels >= 2 are independently
 moving objects. Reported per clip: recall on moving points, the share of static points flagged (an upper
 bound: label 1 includes a few unannotated movers), object-frames detected and ms per frame. An object-frame
@@ -10,29 +12,41 @@ detected when at least half of those points are in the mask. How the published i
 objects at their points (eval/identities.py): id switches, and object-frames whose instance holds another moving
 object too. Over all clips: the per-clip means, and recall, static points flagged, object-frames detected and the
 instances' counts pooled over every scored point-frame or object-frame. The
-first frame of each clip (no motion evidence yet) is not scored. Clips without frames are listed and skipped.
-A frame that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees it, and
-its points are not scored), and listed under its clip (``unreadable``).
+first frame the pipeline gets of each clip (no motion evidence yet) is not scored. Clips without frames are
+listed and skipped, with the reason. A frame that cannot be read (decoded as the node decodes a compressed image:
+a truncated file is unreadable) is skipped, as the node skips an undecodable image (the pipeline never sees it,
+and its points are not scored), and listed under its clip (``unreadable``); so is a frame that does not hold the
+clip's trajectories (``mismatched``: smaller than the points reach, or more than ``OVERSIZE`` times their extent
+both ways: resized frames), and a trajectory frame without a file (``missing``). A figure with nothing to count is
+NaN, written as null in the JSON.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
+from moseg_ros.eval.report import write_json
+from moseg_ros.io.files import frame_number, image_files, read_frame
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer
 
 FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
+FRAME_SUFFIXES = (".png", ".jpg", ".jpeg")
+# A frame larger than this many times the extent of the clip's points both ways is not the frame they were tracked
+# on (the trajectories of KT3DMoSeg's clips reach 0.85-1.0 of their frames' width and 0.94-1.0 of their height).
+OVERSIZE = 1.5
+
+
+class ClipSkipped(Exception):
+    """A clip with no frame to score; its message says why."""
 
 
 @dataclass
@@ -53,6 +67,8 @@ class ClipMaskScore:
     id_switches: int = 0
     shared_object_frames: int = 0
     unreadable: list[str] = field(default_factory=list)
+    mismatched: list[str] = field(default_factory=list)
+    missing: list[int] = field(default_factory=list)
 
 
 def frames_folder(root: Path, clip: str) -> Path | None:
@@ -70,10 +86,11 @@ def points_in_masks(masks: list[np.ndarray], clip: Clip) -> np.ndarray:
 
 
 def values_at_points(maps: list[np.ndarray], clip: Clip) -> np.ndarray:
-    """(N, F) int64: each trajectory point's value in its frame's (H, W) map (0 where not visible or outside)."""
-    height, width = maps[0].shape
+    """(N, F) int64: each trajectory point's value in its frame's (H, W) map, each map of its own size (0 where not
+    visible or outside)."""
     values = np.zeros(clip.visible.shape, dtype=np.int64)
     for t, image in enumerate(maps):
+        height, width = image.shape
         seen = clip.visible[:, t]
         xy = np.rint(clip.tracks[seen, t]).astype(np.int64)
         inside = (xy[:, 0] >= 0) & (xy[:, 0] < width) & (xy[:, 1] >= 0) & (xy[:, 1] < height)
@@ -112,18 +129,45 @@ def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.nda
     return int(present.sum()), int((present & (2 * inside >= points)).sum())
 
 
-def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
-               live: float = 0.0) -> ClipMaskScore | None:
-    """Run the pipeline over the clip's frames and score its masks at the labelled points; None when no frame
-    can be read. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline)."""
-    n = min(len(frame_paths), clip.visible.shape[1])
+def trajectory_frames(files: list[Path], count: int) -> list[Path | None]:
+    """The file of each of a clip's ``count`` trajectory frames (None where there is none): by the number in the
+    files' names (``frame_number``; ``%06d.png`` is frame number - 1, or number when some name holds 0) when every
+    name holds a number of its own, else in the files' order (``files``: natural order)."""
+    numbers = [frame_number(path) for path in files]
+    if None in numbers or len(set(numbers)) < len(numbers):
+        return [*files[:count], *[None] * (count - len(files))]
+    first = 0 if 0 in numbers else 1
+    frames: list[Path | None] = [None] * count
+    for path, number in zip(files, numbers):
+        if 0 <= number - first < count:
+            frames[number - first] = path
+    return frames
+
+
+def holds_points(shape: tuple[int, ...], extent: np.ndarray) -> bool:
+    """Whether a frame of ``shape`` (H, W[, 3]) is one the clip's points (reaching ``extent``, (x, y) at most)
+    were tracked on: they lie inside it (within a pixel), and it is not ``OVERSIZE`` times their extent both
+    ways."""
+    height, width = shape[:2]
+    inside = extent[0] <= width and extent[1] <= height
+    return inside and not (width > OVERSIZE * (extent[0] + 1) and height > OVERSIZE * (extent[1] + 1))
+
+
+def score_clip(clip: Clip, frame_paths: list[Path | None], config: PipelineConfig,
+               live: float = 0.0) -> ClipMaskScore:
+    """Run the pipeline over the clip's frames (``trajectory_frames``: one entry per trajectory frame, None where
+    it has no file) and score its masks at the labelled points. ``live``: a camera's rate (Hz) to run the pipeline
+    at as the node does (0: offline). Raises ClipSkipped when no frame could be given to the pipeline."""
+    present = [t for t, path in enumerate(frame_paths) if path is not None]
+    n = min(present[-1] + 1 if present else 0, clip.visible.shape[1])
+    extent = clip.tracks[clip.visible].max(axis=0) if clip.visible.any() else np.zeros(2)
     masks: list[np.ndarray | None] = []
     instances: list[np.ndarray | None] = []
-    seconds = []
+    seconds, unreadable, mismatched = [], [], []
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t in range(n):
-            frame = cv2.imread(str(frame_paths[t]), cv2.IMREAD_GRAYSCALE)
+            frame = _frame(frame_paths[t], extent, unreadable, mismatched)
             if frame is None:
                 masks.append(None)
                 instances.append(None)
@@ -133,15 +177,15 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
             masks.append(result.masks.dynamic)
             instances.append(result.masks.instance_labels)
             seconds.append(result.seconds)
-    unread = np.array([mask is None for mask in masks])
+    unread = np.array([mask is None for mask in masks], dtype=bool)
     if unread.all():
-        return None
-    blank = np.zeros_like(next(mask for mask in masks if mask is not None))
+        raise ClipSkipped(_why_skipped(n, unreadable, mismatched, extent))
+    blank = np.zeros((1, 1), dtype=np.int32)  # an unread frame's: none of its points is scored
     shown = Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels)
     hits = points_in_masks([blank if mask is None else mask for mask in masks], shown)
     ids = values_at_points([blank if labels is None else labels for labels in instances], shown)
     scored = clip.visible[:, :n] & ~unread
-    scored[:, 0] = False
+    scored[:, :int(np.argmin(unread)) + 1] = False  # up to the pipeline's first frame
     moving = (clip.labels >= 2)[:, None] & scored
     static = (clip.labels == 1)[:, None] & scored
     object_frames, detected = object_frame_detections(hits, scored, clip.labels)
@@ -154,24 +198,51 @@ def score_clip(clip: Clip, frame_paths: list[Path], config: PipelineConfig,
         moving_hits=int(hits[moving].sum()), static_hits=int(hits[static].sum()),
         object_frames=object_frames, object_frames_detected=detected,
         id_switches=sum(follow.switches.values()), shared_object_frames=sum(follow.shared.values()),
-        unreadable=[frame_paths[t].name for t in np.flatnonzero(unread)])
+        unreadable=unreadable, mismatched=mismatched,
+        missing=[t for t in range(n) if frame_paths[t] is None])
+
+
+def _frame(path: Path | None, extent: np.ndarray, unreadable: list[str], mismatched: list[str]) -> np.ndarray | None:
+    """The frame of ``path`` for the pipeline, or None (listed in ``unreadable`` or ``mismatched``, or without a
+    file)."""
+    if path is None:
+        return None
+    try:
+        frame = read_frame(path)
+    except ValueError:
+        unreadable.append(path.name)
+        return None
+    if not holds_points(frame.shape, extent):
+        mismatched.append(f"{path.name} ({frame.shape[1]}x{frame.shape[0]})")
+        return None
+    return frame
+
+
+def _why_skipped(n: int, unreadable: list[str], mismatched: list[str], extent: np.ndarray) -> str:
+    """Why a clip had no frame for the pipeline."""
+    if mismatched:
+        return (f"its frames ({', '.join(mismatched[:3])}{', ...' if len(mismatched) > 3 else ''}) do not hold its "
+                f"trajectories, which reach x = {extent[0]:.0f}, y = {extent[1]:.0f}: not the frames they were "
+                f"tracked on (resized?)")
+    if unreadable:
+        return f"no readable frame ({len(unreadable)} unreadable)"
+    return "no frames" if n == 0 else "no frame file for a trajectory frame"
 
 
 def evaluate(root: Path, config: PipelineConfig = PipelineConfig(),
-             live: float = 0.0) -> tuple[list[ClipMaskScore], list[str]]:
+             live: float = 0.0) -> tuple[list[ClipMaskScore], dict[str, str]]:
     """Score every clip of ``root`` that has frames (``live``: see ``score_clip``); returns the scores and the
-    names of clips without a readable frame."""
-    scores, without = [], []
+    clips skipped, each with the reason."""
+    scores, skipped = [], {}
     for path in find_clips(root):
         clip = load_clip(path)
         folder = frames_folder(root, clip.name)
-        frame_paths = sorted(folder.glob("*.png")) if folder else []
-        score = score_clip(clip, frame_paths, config, live) if frame_paths else None
-        if score is None:
-            without.append(clip.name)
-        else:
-            scores.append(score)
-    return scores, without
+        files = image_files(folder, FRAME_SUFFIXES) if folder else []
+        try:
+            scores.append(score_clip(clip, trajectory_frames(files, clip.visible.shape[1]), config, live))
+        except ClipSkipped as reason:
+            skipped[clip.name] = str(reason)
+    return scores, skipped
 
 
 def ratio(numerator: int, denominator: int) -> float:
@@ -209,10 +280,11 @@ def run(args: argparse.Namespace) -> int:
         return 2
     config = pipeline_config(args)
     with threadpool_limits(1):
-        scores, without = evaluate(root, config, args.live)
+        scores, skipped = evaluate(root, config, args.live)
     if not scores:
         print(f"no KT3DMoSeg clip under {root} has readable frames (OriginalSequences/<clip>/*.png); "
-              f"skipped: {', '.join(without)}")
+              f"skipped: {', '.join(skipped)}")
+        print_skipped(skipped)
         return 2
     print(f"{'clip':16s} {'frames':>6s} {'moving pts':>10s} {'static pts':>10s} {'recall %':>9s} "
           f"{'static flagged %':>16s} {'obj-frames det.':>16s} {'ms/frame':>9s}")
@@ -222,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
               f"{s.ms_per_frame:9.1f}")
     means = {"moving_recall_mean": float(np.nanmean([s.moving_recall for s in scores])),
              "static_flagged_mean": float(np.nanmean([s.static_flagged for s in scores])),
-             "clips_scored": len(scores), "clips_without_frames": without}
+             "clips_scored": len(scores), "clips_without_frames": list(skipped), "skipped_why": skipped}
     print(f"mean over {len(scores)} clips: moving-point recall {100 * means['moving_recall_mean']:.1f} %, "
           f"static points flagged {100 * means['static_flagged_mean']:.2f} %")
     totals = pooled(scores)
@@ -232,12 +304,23 @@ def run(args: argparse.Namespace) -> int:
           f"{100 * totals['object_frames_detected']:.1f} % of {totals['object_frames']}")
     print(f"instances at the moving objects' points: {totals['id_switches']} id switches, "
           f"{totals['shared_object_frames']} object-frames whose instance holds another moving object")
-    if without:
-        print(f"skipped (no readable frames): {', '.join(without)}")
+    print_skipped(skipped)
     for s in scores:
         if s.unreadable:
             print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
+        if s.mismatched:
+            print(f"{s.clip}: frames that do not hold the trajectories, skipped: {', '.join(s.mismatched)}")
+        if s.missing:
+            print(f"{s.clip}: trajectory frames without a file (from 0): {', '.join(map(str, s.missing))}")
     if args.json:
-        args.json.write_text(json.dumps({**means, **totals, "live_hz": args.live, "clips": [asdict(s) for s in scores]},
-                                        indent=2) + "\n")
+        write_json(args.json, {**means, **totals, "live_hz": args.live, "clips": [asdict(s) for s in scores]})
     return 0
+
+
+def print_skipped(skipped: dict[str, str]) -> None:
+    """One line per reason: the clips skipped for it."""
+    by_reason: dict[str, list[str]] = {}
+    for clip, reason in skipped.items():
+        by_reason.setdefault(reason, []).append(clip)
+    for reason, clips in by_reason.items():
+        print(f"skipped ({reason}): {', '.join(clips)}")

@@ -25,6 +25,7 @@ __all__ = [
     "to_gray",
     "to_rgb",
     "compressed_to_array",
+    "decode_image_bytes",
     "array_to_image_fields",
     "image_from_array",
 ]
@@ -239,16 +240,22 @@ def compressed_to_array(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     buf = _buffer(msg.data)
     if buf.size == 0:
         raise ImageDecodeError(f"empty data in a CompressedImage ({msg.format!r})")
+    return decode_image_bytes(buf.tobytes(), f"a {msg.format!r} CompressedImage", max_pixels)
+
+
+def decode_image_bytes(data: bytes, what: str, max_pixels: int | None = None) -> np.ndarray:
+    """Decode an encoded image (JPEG, PNG, ...: the codec is read from the bytes) as ``compressed_to_array``
+    does; ``what`` names it in the errors (ImageDecodeError, a truncated stream among them)."""
     try:
-        with PIL.Image.open(io.BytesIO(buf.tobytes())) as image:
+        with PIL.Image.open(io.BytesIO(data)) as image:
             if max_pixels is not None:
-                check_pixel_count(*image.size, max_pixels, f"a {msg.format!r} CompressedImage")
+                check_pixel_count(*image.size, max_pixels, what)
             image.load()
             return _pillow_pixels(image)
     except ImageDecodeError:
         raise
     except Exception as error:  # Pillow's codec plug-ins raise OSError, EOFError, SyntaxError... on bad streams
-        raise ImageDecodeError(f"could not decode {buf.size} bytes of {msg.format!r}: {error}") from None
+        raise ImageDecodeError(f"could not decode {len(data)} bytes of {what}: {error}") from None
 
 
 def array_to_image_fields(array: np.ndarray, encoding: str) -> dict[str, Any]:

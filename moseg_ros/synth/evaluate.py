@@ -17,7 +17,6 @@ sees a third of it per frame), and every frame it takes is scored.
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import sys
 from collections import Counter
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from moseg_ros.eval.identities import InstanceFollow
+from moseg_ros.eval.report import write_json
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
@@ -211,6 +211,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"instances: {total['moving_id_switches']} id switches of the movers' instances, {total['moving_shared']} "
           f"moving object-frames whose instance holds another mover")
     if args.json:
-        args.json.write_text(json.dumps({"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live,
-                                         "rate_hz": args.rate}, indent=2))
+        write_json(args.json, {"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live,
+                               "rate_hz": args.rate})
     return 0
