@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moseg_ros.eval.identities import INSTANCE_SHARE, InstanceFollow, majority_instances
+from moseg_ros.eval.identities import INSTANCE_SHARE, InstanceFollow, instance_holdings, majority_instances
 
 
 class TestMajorityInstances:
@@ -44,3 +44,19 @@ class TestInstanceFollow:
         truth = np.array([1, 1, 2, 2, 3, 3])
         follow.add(np.array([8, 8, 8, 8, 9, 9]), truth, np.array([1, 2, 3]))
         assert [follow.shared[obj] for obj in (1, 2, 3)] == [1, 1, 0] and sum(follow.switches.values()) == 0
+
+    def test_a_mover_over_two_instances_is_split(self):
+        follow = InstanceFollow()
+        truth = np.ones(10, dtype=np.int64)
+        follow.add(np.array([3] * 6 + [4] * 3 + [0]), truth, np.array([1]))  # 4 holds 0.3: a part of its own
+        follow.add(np.array([3] * 9 + [4]), truth, np.array([1]))  # 4 holds 0.1: a sliver
+        assert follow.split[1] == 1 and follow.switches[1] == 0
+
+
+class TestInstanceHoldings:
+    def test_known_values(self):
+        truth = np.array([1, 1, 1, 1, 1, 2, 2])
+        held, parts = instance_holdings(np.array([5, 5, 5, 6, 6, 0, 0]), truth, np.array([1, 2]))
+        assert held.tolist() == [5, 0] and parts.tolist() == [2, 0]
+        held, parts = instance_holdings(np.zeros(7, dtype=np.int64), truth, np.array([1, 2]))
+        assert held.tolist() == [0, 0] and parts.tolist() == [0, 0]

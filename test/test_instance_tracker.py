@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from moseg_ros.frontend.instances import (InstanceTracker, compact_ids, kept_apart, mask_iou_matrix, nearest_seed,
-                                          propose_regions)
+                                          propose_regions, same_motion)
 
 
 def boxes(shape: tuple[int, int], *rects: tuple[int, int, int, int]) -> np.ndarray:
@@ -140,6 +140,30 @@ class TestKeptApart:
     def test_nothing_in_nothing_out(self):
         empty = np.zeros(self.SHAPE, dtype=np.int32)
         assert not kept_apart(empty, empty, np.array([False]), 0.5).any()
+
+    def test_two_parts_that_move_alike_join_and_two_movers_stay_apart(self):
+        before = boxes(self.SHAPE, (10, 5, 20, 20), (10, 35, 20, 20))
+        joined = boxes(self.SHAPE, (10, 5, 20, 50))
+        flow = np.zeros((*self.SHAPE, 2), dtype=np.float32)
+        flow[:, :, 0] = -10.0  # one car, its front and back: alike
+        flow[:, 30:, 0] = -11.5
+        np.testing.assert_array_equal(kept_apart(joined, before, np.array([False, True, True]), 0.5, flow, 0.3),
+                                      joined)
+        flow[:, 30:, 0] = 4.0  # a cyclist crossing the other way
+        split = kept_apart(joined, before, np.array([False, True, True]), 0.5, flow, 0.3)
+        assert set(np.unique(split)) == {0, 1, 2}
+
+
+class TestSameMotion:
+    def test_known_values(self):
+        flows = np.array([[-10.0, 0.0], [-11.5, 0.5], [4.0, 0.0], [0.2, 0.1], [0.0, 0.0]])
+        # 1 px apart at most, or 0.3 of the faster one: the car's parts, the cyclist, two still regions.
+        assert same_motion(flows, 0.3).tolist() == [0, 0, 2, 3, 3]
+
+    def test_groups_are_connected_components(self):
+        flows = np.array([[10.0, 0.0], [12.5, 0.0], [15.5, 0.0]])  # each alike to the next, not the first to last
+        assert same_motion(flows, 0.2).tolist() == [0, 0, 0]
+        assert same_motion(flows[:1], 0.2).tolist() == [0]
 
 
 class TestInstanceTrackerKeepsApart:

@@ -23,7 +23,7 @@ def test_car_ahead_scored_by_both_methods():
     flagged = object_level["car_ahead"]["flagged"]
     assert totals([object_level, baseline]) == {
         "moving_flagged": flagged, "moving_seen": 10, "static_flagged": 0, "static_seen": 0,
-        "moving_id_switches": 0, "moving_shared": 0,  # object_level publishes the exact instances' ids
+        "moving_id_switches": 0, "moving_shared": 0, "moving_split": 0,  # the exact instances' ids
         "moving_flagged_fraction": flagged / 10, "static_flagged_fraction": 0.0}
 
 

@@ -3,22 +3,21 @@
 For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``, or .jpg; each file is the trajectory
 frame of the number in its name, ``%06d.png`` being frame number - 1 (from 0 when a name holds 0), or in the
 natural order of names without numbers), the pipeline runs over the frames exactly as the node would, and each
-labelled trajectory point visible in a frame is looked up in that frame's
-dynamic mask (``mask[round(y), round(x)]``). Label 1 is the static background, labels >= 2 are independently
-moving objects. Reported per clip: recall on moving points, the share of static points flagged (an upper
-bound: label 1 includes a few unannotated movers), object-frames detected and ms per frame. An object-frame
-is one moving object (label >= 2) in one frame where at least one of its labelled points is visible; it is
-detected when at least half of those points are in the mask. How the published instances follow the moving
-objects at their points (eval/identities.py): id switches, and object-frames whose instance holds another moving
-object too. Over all clips: the per-clip means, and recall, static points flagged, object-frames detected and the
-instances' counts pooled over every scored point-frame or object-frame. The
-first frame the pipeline gets of each clip (no motion evidence yet) is not scored. Clips without frames are
-listed and skipped, with the reason. A frame that cannot be read (decoded as the node decodes a compressed image:
-a truncated file is unreadable) is skipped, as the node skips an undecodable image (the pipeline never sees it,
-and its points are not scored), and listed under its clip (``unreadable``); so is a frame that does not hold the
-clip's trajectories (``mismatched``: smaller than the points reach, or more than ``OVERSIZE`` times their extent
-both ways: resized frames), and a trajectory frame without a file (``missing``). A figure with nothing to count is
-NaN, written as null in the JSON.
+labelled trajectory point visible in a frame is looked up in that frame's dynamic mask (``mask[round(y),
+round(x)]``). Label 1 is the static background, labels >= 2 are independently moving objects. Reported per clip:
+recall on moving points, the share of static points flagged (an upper bound: label 1 includes a few unannotated
+movers), object-frames detected and ms per frame. An object-frame is one moving object (label >= 2) in one frame
+where at least one of its labelled points is visible; it is detected when at least half of those points are in the
+mask. How the published instances follow the moving objects at their points (eval/identities.py): id switches,
+object-frames whose instance holds another moving object too, and object-frames split over two or more instances.
+Over all clips: the per-clip means, and recall, static points flagged, object-frames detected and the instances'
+counts pooled over every scored point-frame or object-frame. The first frame the pipeline gets of each clip (no
+motion evidence yet) is not scored. Clips without frames are listed and skipped, with the reason. A frame that
+cannot be read (decoded as the node decodes a compressed image: a truncated file is unreadable) is skipped, as the
+node skips an undecodable image (the pipeline never sees it, and its points are not scored), and listed under its
+clip (``unreadable``); so is a frame that does not hold the clip's trajectories (``mismatched``: smaller than the
+points reach, or more than ``OVERSIZE`` times their extent both ways: resized frames), and a trajectory frame
+without a file (``missing``). A figure with nothing to count is NaN, written as null in the JSON.
 """
 
 from __future__ import annotations
@@ -66,6 +65,7 @@ class ClipMaskScore:
     object_frames_detected: int
     id_switches: int = 0
     shared_object_frames: int = 0
+    split_object_frames: int = 0
     unreadable: list[str] = field(default_factory=list)
     mismatched: list[str] = field(default_factory=list)
     missing: list[int] = field(default_factory=list)
@@ -198,6 +198,7 @@ def score_clip(clip: Clip, frame_paths: list[Path | None], config: PipelineConfi
         moving_hits=int(hits[moving].sum()), static_hits=int(hits[static].sum()),
         object_frames=object_frames, object_frames_detected=detected,
         id_switches=sum(follow.switches.values()), shared_object_frames=sum(follow.shared.values()),
+        split_object_frames=sum(follow.split.values()),
         unreadable=unreadable, mismatched=mismatched,
         missing=[t for t in range(n) if frame_paths[t] is None])
 
@@ -251,16 +252,17 @@ def ratio(numerator: int, denominator: int) -> float:
 
 
 def pooled(scores: list[ClipMaskScore]) -> dict[str, float | int]:
-    """Recall, static points flagged, object-frames detected, the instances' id switches and shared object-frames
-    over every scored point-frame (object-frame) of every clip, so that long, densely labelled clips weigh more
-    than in the per-clip means."""
+    """Recall, static points flagged, object-frames detected, the instances' id switches, shared and split
+    object-frames over every scored point-frame (object-frame) of every clip, so that long, densely labelled clips
+    weigh more than in the per-clip means."""
     object_frames = sum(s.object_frames for s in scores)
     return {"recall": ratio(sum(s.moving_hits for s in scores), sum(s.moving_points for s in scores)),
             "static_flagged": ratio(sum(s.static_hits for s in scores), sum(s.static_points for s in scores)),
             "object_frames": object_frames,
             "object_frames_detected": ratio(sum(s.object_frames_detected for s in scores), object_frames),
             "id_switches": sum(s.id_switches for s in scores),
-            "shared_object_frames": sum(s.shared_object_frames for s in scores)}
+            "shared_object_frames": sum(s.shared_object_frames for s in scores),
+            "split_object_frames": sum(s.split_object_frames for s in scores)}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -303,7 +305,8 @@ def run(args: argparse.Namespace) -> int:
     print("object-frames detected (at least half of their visible points in the mask): "
           f"{100 * totals['object_frames_detected']:.1f} % of {totals['object_frames']}")
     print(f"instances at the moving objects' points: {totals['id_switches']} id switches, "
-          f"{totals['shared_object_frames']} object-frames whose instance holds another moving object")
+          f"{totals['shared_object_frames']} object-frames whose instance holds another moving object, "
+          f"{totals['split_object_frames']} split over two or more instances")
     print_skipped(skipped)
     for s in scores:
         if s.unreadable:

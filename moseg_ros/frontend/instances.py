@@ -11,6 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.sparse.csgraph import connected_components
 
 from moseg_ros.core.baseline import DENSE_IDS
 from moseg_ros.core.flow_field import pulled_forward
@@ -75,18 +76,24 @@ def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cu
     return inter / np.maximum(union, 1.0)
 
 
-def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, share: float) -> np.ndarray:
-    """``regions`` with every region that took in two or more eligible regions of the frame before split between
-    them: each of its pixels goes to the nearest pixel of those regions inside it (cv2.distanceTransformWithLabels).
+def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, share: float,
+               flow: np.ndarray | None = None, motion_ratio: float = 0.0) -> np.ndarray:
+    """``regions`` with every region that took in two or more eligible regions of the frame before that move apart
+    split between them: each of its pixels goes to the nearest pixel of those regions inside it
+    (cv2.distanceTransformWithLabels).
 
     Two movers whose regions touch come out of the evidence as one connected region; the frame before still had
-    them apart, and each of them lies mostly inside the joined one.
+    them apart, and each of them lies mostly inside the joined one. Two parts of one mover (a car's front and
+    back, flagged apart for a while) also do, but they move alike (``same_motion``): they are joined.
 
     Args:
         regions: (H, W) int32, 0 = none and 1..R each present.
         previous: (H, W) int, the frame before's regions (0 = none, 1..P) at this frame (moved along the flow).
         eligible: (P + 1,) bool, which of ``previous``'s regions may be kept apart (the first, none, is ignored).
         share: the least share of an eligible region's pixels inside one region of ``regions`` that takes it in.
+        flow: optional (H, W, 2) flow at this frame (to the frame before): regions taken in whose median flows
+            are alike (``same_motion`` with ``motion_ratio``) count as one; None: each is a mover of its own.
+        motion_ratio: see ``same_motion``.
 
     Returns:
         (H, W) int32: the regions, the parts of a split one numbered R + 1 on (its first part keeps its number).
@@ -100,23 +107,47 @@ def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, 
     host = joint[:, 1:].argmax(axis=1) + 1
     taken = eligible & (joint[np.arange(n_prev + 1), host] >= share * np.maximum(joint.sum(axis=1), 1))
     taken[0] = False
-    crowded = np.flatnonzero(np.bincount(host[taken], minlength=n_cur + 1) >= 2)
-    if crowded.size == 0:
-        return regions
     out = regions.copy()
     next_label = n_cur + 1
-    for region in crowded:
+    for region in np.flatnonzero(np.bincount(host[taken], minlength=n_cur + 1) >= 2):
         ys, xs = np.nonzero(regions == region)
         window = np.s_[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
         inside = regions[window] == region
-        seeds = np.where(inside & taken[previous[window]], previous[window], 0)
-        nearest = nearest_seed(seeds)
+        members = np.flatnonzero(taken & (host == region))
+        mover = np.zeros(n_prev + 1, dtype=np.int64)
+        mover[members] = members
+        if flow is not None:
+            here = previous[window]
+            medians = np.array([np.median(flow[window][inside & (here == m)], axis=0) for m in members])
+            mover[members] = members[same_motion(medians, motion_ratio)]
+        if np.unique(mover[members]).size < 2:
+            continue
+        nearest = nearest_seed(np.where(inside, mover[previous[window]], 0))
         parts = np.unique(nearest[inside])
         numbers = np.zeros(int(parts.max()) + 1, dtype=np.int32)
         numbers[parts] = np.concatenate([[region], np.arange(next_label, next_label + parts.size - 1)])
         next_label += parts.size - 1
         out[window][inside] = numbers[nearest[inside]]
     return out
+
+
+# Two regions' median flows closer than this (pixels a frame) move alike whatever their speed (``same_motion``):
+# DIS's error on a smooth body and a slow mover's parts.
+SAME_MOTION_FLOOR_PX = 1.0
+
+
+def same_motion(flows: np.ndarray, ratio: float) -> np.ndarray:
+    """(K,) int: for each of the (K, 2) median ``flows`` of K regions, the first of the group it moves with: two
+    regions move alike when their flows differ by at most ``ratio`` of the faster one's or ``SAME_MOTION_FLOOR_PX``
+    (a rigid body's parts differ by its rotation and looming; two movers by their own motions); groups are the
+    connected components of that relation (scipy.sparse.csgraph)."""
+    speed = np.linalg.norm(flows, axis=1)
+    apart = np.linalg.norm(flows[:, None] - flows[None], axis=2)
+    alike = apart <= np.maximum(SAME_MOTION_FLOOR_PX, ratio * np.maximum(speed[:, None], speed[None]))
+    _, group = connected_components(alike, directed=False)
+    first = np.full(group.max() + 1, len(flows))
+    np.minimum.at(first, group, np.arange(len(flows)))
+    return first[group]
 
 
 def nearest_seed(seeds: np.ndarray) -> np.ndarray:
@@ -134,13 +165,16 @@ class InstanceTracker:
 
     ``ages`` counts, per id, the consecutive frames it has been seen, so callers can ignore one-frame
     flickers (flow failures) and keep only regions that persist. With ``keep_apart_after`` > 0, ``update`` keeps
-    two regions seen that many frames apart when they join (``kept_apart``): each keeps its id.
+    two regions seen that many frames apart when they join while they move apart (``kept_apart``, with the flow):
+    each keeps its id.
     """
 
-    def __init__(self, min_iou: float = 0.2, keep_apart_after: int = 0, keep_apart_share: float = 0.5) -> None:
+    def __init__(self, min_iou: float = 0.2, keep_apart_after: int = 0, keep_apart_share: float = 0.5,
+                 keep_apart_motion: float = 0.3) -> None:
         self.min_iou = min_iou
         self.keep_apart_after = keep_apart_after
         self.keep_apart_share = keep_apart_share
+        self.keep_apart_motion = keep_apart_motion
         # The previous frame's regions as given (0..R) and the id each got: matching against them needs no
         # renumbering of the previous ids' map.
         self._previous: tuple[np.ndarray, np.ndarray] | None = None
@@ -161,7 +195,8 @@ class InstanceTracker:
         if self.keep_apart_after > 0 and previous is not None:
             old_ids = np.concatenate([[0], self._previous[1]])
             eligible = np.array([self.ages.get(int(i), 0) >= self.keep_apart_after for i in old_ids])
-            regions = kept_apart(regions, previous, eligible, self.keep_apart_share)
+            moved = flow if flow is not None and flow.shape[:2] == regions.shape else None
+            regions = kept_apart(regions, previous, eligible, self.keep_apart_share, moved, self.keep_apart_motion)
         return np.take(self._matched(regions, previous), regions)
 
     def assign(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:

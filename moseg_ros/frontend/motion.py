@@ -57,8 +57,8 @@ similarity and along the dense flow), is no longer covered by this frame's evide
 ``coast_frames`` frames (a car passing the camera, whose tracks die of its growth and whose flow fails its check).
 The result, closed and opened, is split into connected regions of ``min_region_area`` pixels or more, and the
 InstanceTracker gives them persistent ids, matching them against the last frame's regions moved along the flow; a
-region that took in two it had seen apart for ``keep_apart_after`` frames is split between them first (two movers
-that touch in the image keep their ids).
+region that took in two it had seen apart for ``keep_apart_after`` frames and that move apart is split between them
+first (two movers that touch in the image keep their ids; two parts of one mover join).
 """
 
 from __future__ import annotations
@@ -196,11 +196,12 @@ class MotionFrontEndConfig:
     coast_tracks: int = 4
     coast_cover: float = 0.7
     # Two regions seen apart for ``keep_apart_after`` frames in a row each keep their id when their evidence joins
-    # (frontend/instances.kept_apart: each lies at least ``keep_apart_share`` inside the joined region). 0: off.
-    # KT3DMoSeg's movers sharing an instance: 48 -> 22 object-frames at 3 and at 2; at 2 the synthetic presets
-    # flagged a static object-frame (docs/experiments.md).
+    # (frontend/instances.kept_apart: each lies at least ``keep_apart_share`` inside the joined region), unless
+    # their median flows differ by no more than ``keep_apart_motion`` of the faster one's (frontend/instances.
+    # same_motion): then they are two parts of one mover, and join. 0: off (docs/experiments.md).
     keep_apart_after: int = 3
     keep_apart_share: float = 0.5
+    keep_apart_motion: float = 0.3
     # The most track pairs of skipped frames a refit fits before its own, newest first (``_catch_up``): each costs
     # as much as the refit's own pair fit (one was the most a refit could afford while MAGSAC++ fitted them). 8:
     # every skipped frame's of a window of eight.
@@ -351,7 +352,8 @@ class MotionFrontEnd:
         # The refit's own: a DIS instance is not to be shared between threads.
         self._refit_flow = DenseFlow(self._flow.preset)
         self._regions = InstanceTracker(keep_apart_after=config.keep_apart_after,
-                                        keep_apart_share=config.keep_apart_share)
+                                        keep_apart_share=config.keep_apart_share,
+                                        keep_apart_motion=config.keep_apart_motion)
         self.stages = Stages()
         self.reset()
 

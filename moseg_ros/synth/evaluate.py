@@ -8,7 +8,8 @@ upstream instances (what `use_instances` gives the node) and an object-frame is 
 frame's dynamic ids. Moving and static objects are counted apart. Prints a line per preset and seed (each object
 as name:flagged/seen, * = moving), the totals per kind of object and overall, and how the published masks
 cover the moving objects' pixels over the scored frames (IoU, precision, recall), and how the published instances
-follow the movers (eval/identities.py: id switches, and object-frames whose instance holds another mover too);
+follow the movers (eval/identities.py: id switches, object-frames whose instance holds another mover too, and
+object-frames split over two or more instances);
 --json writes them.
 With --rate a camera running at that rate sees the same scenes (the same motion per second, so a 30 Hz camera
 sees a third of it per frame), and every frame it takes is scored.
@@ -90,7 +91,7 @@ def score_scene(preset: str, seed: int, config: PipelineConfig, *, n_frames: int
                        ids[counted & np.isin(ids, list(sequence.dynamic_ids))])
     return {sequence.object_names[obj]: {"moving": obj in sequence.dynamic_ids, "flagged": flagged[obj],
                                          "seen": seen[obj], "id_switches": follow.switches[obj],
-                                         "shared": follow.shared[obj]}
+                                         "shared": follow.shared[obj], "split": follow.split[obj]}
             for obj in sorted(seen)}
 
 
@@ -114,7 +115,7 @@ def _share(part: int, whole: int) -> float:
 
 
 def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
-    """Object-frames flagged and counted, moving and static, and the moving objects' id switches and shared
+    """Object-frames flagged and counted, moving and static, and the moving objects' id switches, shared and split
     object-frames (eval/identities.py), over scored scenes."""
     out = Counter()
     for scene in scenes:
@@ -124,8 +125,9 @@ def totals(scenes: list[dict[str, dict[str, int | bool]]]) -> dict[str, int]:
             out[f"{kind}_seen"] += int(obj["seen"])
             out["moving_id_switches"] += int(obj["id_switches"])  # followed for the moving objects only
             out["moving_shared"] += int(obj["shared"])
+            out["moving_split"] += int(obj["split"])
     counts = {key: out[key] for key in ("moving_flagged", "moving_seen", "static_flagged", "static_seen",
-                                        "moving_id_switches", "moving_shared")}
+                                        "moving_id_switches", "moving_shared", "moving_split")}
     return {**counts, "moving_flagged_fraction": out["moving_flagged"] / max(out["moving_seen"], 1),
             "static_flagged_fraction": out["static_flagged"] / max(out["static_seen"], 1)}
 
@@ -209,7 +211,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"moving pixels: IoU {total['pixel_iou']:.3f}, precision {total['pixel_precision']:.3f}, "
           f"recall {total['pixel_recall']:.3f} (the published masks over the scored frames)")
     print(f"instances: {total['moving_id_switches']} id switches of the movers' instances, {total['moving_shared']} "
-          f"moving object-frames whose instance holds another mover")
+          f"moving object-frames whose instance holds another mover, {total['moving_split']} split over two or more "
+          f"instances")
     if args.json:
         write_json(args.json, {"totals": total, "by_object": kinds, "scenes": rows, "live_hz": args.live,
                                "rate_hz": args.rate})
