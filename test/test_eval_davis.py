@@ -108,7 +108,8 @@ def test_max_frames_and_a_folder_without_clips(tmp_path, capsys):
     out.unlink()
     assert moseg(["eval", "davis", str(frames_only), "--json", str(out)]) == 2
     printed = capsys.readouterr().out
-    assert "has both frames and annotations" in printed and "skipped: unlabelled" in printed and "nan" not in printed
+    assert "has a frame scored" in printed and "skipped: unlabelled" in printed and "nan" not in printed
+    assert "skipped (no annotations): unlabelled" in printed
     assert not out.exists()
 
 
@@ -207,6 +208,34 @@ def test_a_clip_without_a_scored_frame_is_skipped(tmp_path, capsys):
     assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 2
     printed = capsys.readouterr().out
     assert "skipped: one-frame" in printed and "nan" not in printed and not out.exists()
+    assert "skipped (one frame: nothing after the pipeline's first): one-frame" in printed
+
+
+def test_max_frames_cuts_the_pairs_not_the_pairing(tmp_path):
+    """Six frames and six annotations without a stem in common pair by order; --max-frames 3 keeps that pairing
+    (cut first, three frames against six annotations would have paired by numbers their names do not hold)."""
+    root = tmp_path / "davis"
+    _write_clip(root, "block", [f"{i:05d}.jpg" for i in range(6)], [f"gt_{c}.png" for c in "abcdef"], seed=0)
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--max-frames", "3", "--json", str(out)]) == 0
+    clip, = json.loads(out.read_text())["clips"]
+    assert clip["frames"] == 3 and clip["scored_frames"] == 2
+
+
+def test_a_frame_of_another_size_is_listed_not_run(tmp_path, capsys):
+    """The pipeline would start over on a frame of another size (and score frames without motion evidence after
+    it): it is listed and left out, and the clip scores as without it."""
+    root = tmp_path / "davis"
+    names = [f"{i:05d}" for i in range(8)]
+    _write_clip(root, "block", [f"{n}.jpg" for n in names], [f"{n}.png" for n in names], seed=0)
+    frame = root / "JPEGImages" / "480p" / "block" / "00004.jpg"
+    cv2.imwrite(str(frame), cv2.resize(cv2.imread(str(frame)), (WIDTH // 2, HEIGHT // 2)))
+    out = tmp_path / "r.json"
+    assert moseg(["eval", "davis", str(root), "--json", str(out)]) == 0
+    clip, = json.loads(out.read_text())["clips"]
+    assert clip["mismatched"] == [f"00004.jpg ({WIDTH // 2}x{HEIGHT // 2}, the clip's {WIDTH}x{HEIGHT})"]
+    assert clip["scored_frames"] == 6 and clip["j"] > 0.3
+    assert "block: not scored, of another size or aspect: 00004.jpg" in capsys.readouterr().out
 
 
 def _real_clip(tmp_path: Path, clip: str, frames: int) -> dict:

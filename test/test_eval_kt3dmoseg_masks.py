@@ -150,7 +150,8 @@ def test_frames_named_by_plain_numbers_or_as_jpeg_score_as_the_layout(tmp_path):
     """Seq070_Clip01 (10 frames) as 000001.png..., as 0.png ... 9.png, as 1.png ... 10.png (10 after 9, not
     after 1) and as JPEG: the same frames for the same trajectory frames."""
     reference = _scored(tmp_path, _subset(tmp_path / "kt", ["Seq070_Clip01"]), "layout")
-    for name, rename in (("from0", lambda i, p: f"{i}.png"), ("from1", lambda i, p: f"{i + 1}.png")):
+    for name, rename in (("from0", lambda i, p: f"{i}.png"), ("from1", lambda i, p: f"{i + 1}.png"),
+                         ("cut", lambda i, p: f"{i + 45:010d}.png")):  # from a longer sequence
         row = _scored(tmp_path, _copied(tmp_path / name, "Seq070_Clip01", rename), name)
         assert row["moving_recall"] == reference["moving_recall"]
         assert row["static_flagged"] == reference["static_flagged"] and row["missing"] == []
@@ -184,6 +185,22 @@ def test_frames_not_of_the_trajectories_size_are_listed_not_scored(tmp_path, cap
                         edit=lambda i, image: image[:300, :900] if i == 5 else image)
     row = _scored(tmp_path, one_small, "one")
     assert row["mismatched"] == ["000006.png (900x300)"] and row["moving_recall"] > 0.5
+    padded = _copied(tmp_path / "padded", "Seq070_Clip01",
+                     edit=lambda i, image: cv2.copyMakeBorder(image, 0, 8, 0, 8, cv2.BORDER_REPLICATE) if i == 5
+                     else image)  # holds the points, but the pipeline would start over on it
+    assert _scored(tmp_path, padded, "padded")["mismatched"] == ["000006.png (1250x383)"]
+
+
+def test_damaged_clip_files_and_one_frame_clips_are_skipped_with_the_reason(tmp_path, capsys):
+    root = _subset(tmp_path / "kt", ["Seq070_Clip01"])
+    whole = shared_data("kt3dmoseg", "Data", "Seq070_Clip01_Tracks.mat").read_bytes()
+    (root / "Data" / "Seq070_Clip01.mat").unlink()
+    (root / "Data" / "Seq070_Clip01.mat").write_bytes(whole[:len(whole) // 2])
+    assert moseg(["eval", "kt3dmoseg-masks", str(root)]) == 2
+    assert "not a readable KT3DMoSeg clip" in capsys.readouterr().out
+    single = _copied(tmp_path / "single", "Seq070_Clip01", lambda i, p: p.name if i == 0 else None)
+    assert moseg(["eval", "kt3dmoseg-masks", str(single)]) == 2
+    assert "skipped (no frame to score after the pipeline's first): Seq070_Clip01" in capsys.readouterr().out
 
 
 def test_the_first_frame_the_pipeline_gets_is_not_scored(tmp_path):
@@ -215,6 +232,7 @@ class TestHoldsPoints:
         assert holds_points((375, 1242), extent) and holds_points((375, 1242, 3), extent)
         assert not holds_points((188, 621), extent)  # smaller than the points reach
         assert not holds_points((750, 2484), extent)  # twice their extent both ways
+        assert not holds_points((487, 1615), extent)  # 1.3 times
         assert holds_points((375, 1500), np.array([1050.0, 370.0]))  # points short of the right side
 
 

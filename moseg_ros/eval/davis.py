@@ -7,14 +7,16 @@ decoded as the node decodes a compressed image (a truncated file is unreadable);
 image of the same stem or, when no stems match, by order when there are as many as frames, else by the number in
 their names. For every clip that has annotations, the pipeline runs over the frames exactly as the node would
 (stamps at 24 Hz) and each annotated frame's dynamic mask is compared with its annotation, at the annotation's
-size when that differs from the frame's by a scale alone (else the frame is listed and not scored). The first
-frame the pipeline gets of each clip (no motion evidence yet) is not scored.
+size when that differs from the frame's by a scale alone (else the frame is listed and not scored); a frame of
+another size than the clip's first is listed and not run (the pipeline would start over on it). The first frame the
+pipeline gets of each clip (no motion evidence yet) is not scored.
 
 Reported per clip: J (the DAVIS region measure: mean over frames of the IoU, 1 where both masks are empty),
 pixel precision and recall pooled over the clip's frames, and ms per frame (the first frame excluded). The
 mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
 ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
-positives. Clips without annotations, without frames or without a scored frame are listed and skipped. A frame
+positives. Clips without annotations, without frames or without a scored frame are listed and skipped, with the
+reason. A frame
 or annotation that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees
 such a frame, and it is not scored), and listed under its clip (``unreadable``). A figure with nothing to count
 is NaN, written as null in the JSON.
@@ -32,7 +34,7 @@ import PIL.Image
 from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.masks import mask_iou
-from moseg_ros.eval.report import write_json
+from moseg_ros.eval.report import ClipSkipped, print_skipped, write_json
 from moseg_ros.io.files import frame_number, image_files, read_frame
 from moseg_ros.io.image import ImageDecodeError
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
@@ -125,12 +127,14 @@ def pooled_ratio(numerator: int, denominator: int) -> float:
 
 
 def score_clip(name: str, images: list[Path], annotations: list[Path | None],
-               config: PipelineConfig, live: float = 0.0) -> ClipScore | None:
+               config: PipelineConfig, live: float = 0.0) -> ClipScore:
     """Run the pipeline over the clip's frames and compare each annotated frame's mask (after the first frame the
-    pipeline gets) with it; None when no frame can be read or none is scored. ``live``: a camera's rate (Hz) to
-    run the pipeline at as the node does (0: offline)."""
+    pipeline gets) with it. ``live``: a camera's rate (Hz) to run the pipeline at as the node does (0: offline).
+    A frame of another size than the clip's first readable one is listed (``mismatched``) and not run: the
+    pipeline would start over on it. Raises ClipSkipped when no frame is scored."""
     ious, seconds, unreadable, mismatched = [], [], [], []
     tp = fp = fn = 0
+    size = None
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t, (image, annotation) in enumerate(zip(images, annotations)):
@@ -138,6 +142,10 @@ def score_clip(name: str, images: list[Path], annotations: list[Path | None],
                 frame = read_frame(image)
             except ValueError:
                 unreadable.append(image.name)
+                continue
+            size = size or frame.shape[:2]
+            if frame.shape[:2] != size:
+                mismatched.append(f"{image.name} ({frame.shape[1]}x{frame.shape[0]}, the clip's {size[1]}x{size[0]})")
                 continue
             pacer.wait()
             result = pipeline.process(frame, round(t * FRAME_PERIOD_NS), next_frame_at=pacer.next_due)
@@ -159,7 +167,7 @@ def score_clip(name: str, images: list[Path], annotations: list[Path | None],
             fp += np.count_nonzero(predicted & ~truth)
             fn += np.count_nonzero(~predicted & truth)
     if not ious:
-        return None
+        raise ClipSkipped(_why_skipped(seconds, annotations, unreadable, mismatched))
     return ClipScore(
         clip=name, frames=len(images), scored_frames=len(ious), j=float(np.mean(ious)),
         precision=pooled_ratio(tp, tp + fp), recall=pooled_ratio(tp, tp + fn),
@@ -167,20 +175,37 @@ def score_clip(name: str, images: list[Path], annotations: list[Path | None],
         ms_per_frame=1e3 * float(np.mean(seconds[1:])), unreadable=unreadable, mismatched=mismatched)
 
 
+def _why_skipped(processed: list[float], annotations: list[Path | None], unreadable: list[str],
+                 mismatched: list[str]) -> str:
+    """Why a clip had no frame scored."""
+    if not processed:
+        return "no readable frame"
+    if len(processed) == 1:
+        return "one frame: nothing after the pipeline's first"
+    if mismatched:
+        return "no annotation of its frame's aspect"
+    if not any(annotation is not None for annotation in annotations):
+        return "no annotation pairs with a frame (stems, order or numbers)"
+    return "no readable annotation after the pipeline's first frame" if unreadable else "no annotated frame scored"
+
+
 def evaluate(root: Path, config: PipelineConfig, max_frames: int | None = None,
-             live: float = 0.0) -> tuple[list[ClipScore], list[str]]:
+             live: float = 0.0) -> tuple[list[ClipScore], dict[str, str]]:
     """Score every clip of ``root`` that has readable frames and annotations (``live``: see ``score_clip``);
-    returns the scores and the skipped clips (no annotations, no readable frame or no frame scored)."""
-    scores, skipped = [], []
+    returns the scores and the skipped clips with the reason. ``max_frames``: the first frames of each clip,
+    paired with their annotations before they are cut."""
+    scores, skipped = [], {}
     for name in clip_names(root):
-        images = image_files(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)[:max_frames]
+        images = image_files(root / "JPEGImages" / RESOLUTION / name, IMAGE_SUFFIXES)
         annotations = image_files(root / "Annotations" / RESOLUTION / name, (".png",))
-        score = (score_clip(name, images, pair_annotations(images, annotations), config, live)
-                 if images and annotations else None)
-        if score is None:
-            skipped.append(name)
-        else:
-            scores.append(score)
+        if not images or not annotations:
+            skipped[name] = "no frames" if not images else "no annotations"
+            continue
+        paired = pair_annotations(images, annotations)
+        try:
+            scores.append(score_clip(name, images[:max_frames], paired[:max_frames], config, live))
+        except ClipSkipped as reason:
+            skipped[name] = str(reason)
     return scores, skipped
 
 
@@ -226,8 +251,9 @@ def run(args: argparse.Namespace) -> int:
     with threadpool_limits(1):
         scores, skipped = evaluate(args.dir, config, args.max_frames, args.live)
     if not scores:
-        print(f"no DAVIS clip under {args.dir} has both frames and annotations "
+        print(f"no DAVIS clip under {args.dir} has a frame scored against an annotation "
               f"(Annotations/{RESOLUTION}/<clip>/*.png); skipped: {', '.join(skipped)}")
+        print_skipped(skipped)
         return 2
     print(f"{'clip':20s} {'frames':>6s} {'scored':>6s} {'J %':>6s} {'precision %':>11s} {'recall %':>8s} "
           f"{'ms/frame':>8s}")
@@ -238,14 +264,13 @@ def run(args: argparse.Namespace) -> int:
     print(f"mean over {len(scores)} clips: J {100 * means['mean_j']:.1f} %, pooled precision "
           f"{100 * means['precision']:.1f} %, recall {100 * means['recall']:.1f} %, "
           f"{means['ms_per_frame']:.1f} ms per frame ({config.method})")
-    if skipped:
-        print(f"skipped (no annotations, no readable frames or no frame scored): {', '.join(skipped)}")
+    print_skipped(skipped)
     for s in scores:
         if s.unreadable:
             print(f"{s.clip}: unreadable, skipped: {', '.join(s.unreadable)}")
         if s.mismatched:
-            print(f"{s.clip}: annotations not of their frame's aspect, not scored: {', '.join(s.mismatched)}")
+            print(f"{s.clip}: not scored, of another size or aspect: {', '.join(s.mismatched)}")
     if args.json:
-        write_json(args.json, {**means, "clips": [asdict(s) for s in scores], "clips_skipped": skipped,
-                               "config": asdict(config), "live_hz": args.live})
+        write_json(args.json, {**means, "clips": [asdict(s) for s in scores], "clips_skipped": list(skipped),
+                               "skipped_why": skipped, "config": asdict(config), "live_hz": args.live})
     return 0

@@ -18,6 +18,7 @@ import argparse
 import multiprocessing
 import os
 import statistics
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -75,11 +76,15 @@ def no_clips_message(root: Path) -> str:
 
 
 def load_clip(path: Path) -> Clip:
-    """Read a KT3DMoSeg .mat (see the data's PROVENANCE.md): homogeneous (3, N, F) points -> (N, F, 2)."""
-    data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)["Data"]
-    y = np.asarray(data.ySparse, dtype=np.float64)
-    visible = np.asarray(data.visibleSparse).astype(bool)
-    labels = np.atleast_1d(np.asarray(data.GtLabel)).astype(np.int64)
+    """Read a KT3DMoSeg .mat (see the data's PROVENANCE.md): homogeneous (3, N, F) points -> (N, F, 2). Raises
+    ValueError naming the file when it cannot be read or lacks the clip's fields or shapes."""
+    try:
+        data = scipy.io.loadmat(str(path), squeeze_me=True, struct_as_record=False)["Data"]
+        y = np.asarray(data.ySparse, dtype=np.float64)
+        visible = np.asarray(data.visibleSparse).astype(bool)
+        labels = np.atleast_1d(np.asarray(data.GtLabel)).astype(np.int64)
+    except Exception as error:  # scipy raises OSError, ValueError, TypeError... on damaged files; fields may lack
+        raise ValueError(f"{path}: not a readable KT3DMoSeg clip ({type(error).__name__}: {error})") from None
     if y.ndim != 3 or y.shape[0] != 3 or visible.shape != y.shape[1:] or labels.shape != y.shape[1:2]:
         raise ValueError(f"{path}: unexpected shapes ySparse {y.shape}, visibleSparse {visible.shape}, "
                          f"GtLabel {labels.shape}")
@@ -136,7 +141,11 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.jobs < 1:
         print("--seeds and --jobs must be >= 1")
         return 2
-    clips = [load_clip(f) for f in files]
+    try:
+        clips = [load_clip(f) for f in files]
+    except ValueError as error:
+        print(f"moseg eval kt3dmoseg: error: {error}", file=sys.stderr)
+        return 2
     seeds = list(range(args.seed, args.seed + args.seeds))
     jobs = [(clip, args.views, seed, args.estimate_k) for seed in seeds for clip in clips]
     start = time.perf_counter()

@@ -16,8 +16,8 @@ motion evidence yet) is not scored. Clips without frames are listed and skipped,
 cannot be read (decoded as the node decodes a compressed image: a truncated file is unreadable) is skipped, as the
 node skips an undecodable image (the pipeline never sees it, and its points are not scored), and listed under its
 clip (``unreadable``); so is a frame that does not hold the clip's trajectories (``mismatched``: smaller than the
-points reach, or more than ``OVERSIZE`` times their extent both ways: resized frames), and a trajectory frame
-without a file (``missing``). A figure with nothing to count is NaN, written as null in the JSON.
+points reach, or more than ``OVERSIZE`` times their extent both ways: resized frames, or not of the clip's size),
+and a trajectory frame without a file (``missing``). A figure with nothing to count is NaN, written as null in the JSON.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from threadpoolctl import threadpool_limits
 
 from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
-from moseg_ros.eval.report import write_json
+from moseg_ros.eval.report import ClipSkipped, print_skipped, write_json
 from moseg_ros.io.files import frame_number, image_files, read_frame
 from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -40,12 +40,9 @@ from moseg_ros.timing import Pacer
 FRAME_PERIOD_NS = 100_000_000  # the clips are consecutive KITTI frames, nominally 10 Hz
 FRAME_SUFFIXES = (".png", ".jpg", ".jpeg")
 # A frame larger than this many times the extent of the clip's points both ways is not the frame they were tracked
-# on (the trajectories of KT3DMoSeg's clips reach 0.85-1.0 of their frames' width and 0.94-1.0 of their height).
-OVERSIZE = 1.5
-
-
-class ClipSkipped(Exception):
-    """A clip with no frame to score; its message says why."""
+# on (the trajectories of KT3DMoSeg's clips reach 0.85-1.0 of their frames' width and 0.94-1.0 of their height;
+# frames resized 1.3 times scored 10 % of the moving points).
+OVERSIZE = 1.2
 
 
 @dataclass
@@ -131,12 +128,13 @@ def object_frame_detections(hits: np.ndarray, scored: np.ndarray, labels: np.nda
 
 def trajectory_frames(files: list[Path], count: int) -> list[Path | None]:
     """The file of each of a clip's ``count`` trajectory frames (None where there is none): by the number in the
-    files' names (``frame_number``; ``%06d.png`` is frame number - 1, or number when some name holds 0) when every
-    name holds a number of its own, else in the files' order (``files``: natural order)."""
+    files' names (``frame_number``) when every name holds a number of its own, else in the files' order
+    (``files``: natural order). Numbers count from 0 when some name holds 0, else from 1 (the layout's
+    ``%06d.png``) when they fit, else from the lowest (frames cut from a longer sequence, 0000000045.png on)."""
     numbers = [frame_number(path) for path in files]
     if None in numbers or len(set(numbers)) < len(numbers):
         return [*files[:count], *[None] * (count - len(files))]
-    first = 0 if 0 in numbers else 1
+    first = 0 if 0 in numbers else 1 if max(numbers, default=0) <= count else min(numbers)
     frames: list[Path | None] = [None] * count
     for path, number in zip(files, numbers):
         if 0 <= number - first < count:
@@ -158,16 +156,17 @@ def score_clip(clip: Clip, frame_paths: list[Path | None], config: PipelineConfi
     """Run the pipeline over the clip's frames (``trajectory_frames``: one entry per trajectory frame, None where
     it has no file) and score its masks at the labelled points. ``live``: a camera's rate (Hz) to run the pipeline
     at as the node does (0: offline). Raises ClipSkipped when no frame could be given to the pipeline."""
-    present = [t for t, path in enumerate(frame_paths) if path is not None]
-    n = min(present[-1] + 1 if present else 0, clip.visible.shape[1])
+    n = min(len(frame_paths), clip.visible.shape[1])
     extent = clip.tracks[clip.visible].max(axis=0) if clip.visible.any() else np.zeros(2)
     masks: list[np.ndarray | None] = []
     instances: list[np.ndarray | None] = []
     seconds, unreadable, mismatched = [], [], []
+    size = None  # the clip's frame size: its first frame's that holds the points
     pacer = Pacer(live)
     with Pipeline(config, live=live > 0) as pipeline:
         for t in range(n):
-            frame = _frame(frame_paths[t], extent, unreadable, mismatched)
+            frame = _frame(frame_paths[t], extent, size, unreadable, mismatched)
+            size = size or (frame.shape[:2] if frame is not None else None)
             if frame is None:
                 masks.append(None)
                 instances.append(None)
@@ -179,13 +178,15 @@ def score_clip(clip: Clip, frame_paths: list[Path | None], config: PipelineConfi
             seconds.append(result.seconds)
     unread = np.array([mask is None for mask in masks], dtype=bool)
     if unread.all():
-        raise ClipSkipped(_why_skipped(n, unreadable, mismatched, extent))
+        raise ClipSkipped(_why_skipped(unreadable, mismatched, extent))
     blank = np.zeros((1, 1), dtype=np.int32)  # an unread frame's: none of its points is scored
     shown = Clip(clip.name, clip.tracks[:, :n], clip.visible[:, :n], clip.labels)
     hits = points_in_masks([blank if mask is None else mask for mask in masks], shown)
     ids = values_at_points([blank if labels is None else labels for labels in instances], shown)
     scored = clip.visible[:, :n] & ~unread
     scored[:, :int(np.argmin(unread)) + 1] = False  # up to the pipeline's first frame
+    if not scored.any():
+        raise ClipSkipped("no frame to score after the pipeline's first")
     moving = (clip.labels >= 2)[:, None] & scored
     static = (clip.labels == 1)[:, None] & scored
     object_frames, detected = object_frame_detections(hits, scored, clip.labels)
@@ -203,9 +204,10 @@ def score_clip(clip: Clip, frame_paths: list[Path | None], config: PipelineConfi
         missing=[t for t in range(n) if frame_paths[t] is None])
 
 
-def _frame(path: Path | None, extent: np.ndarray, unreadable: list[str], mismatched: list[str]) -> np.ndarray | None:
-    """The frame of ``path`` for the pipeline, or None (listed in ``unreadable`` or ``mismatched``, or without a
-    file)."""
+def _frame(path: Path | None, extent: np.ndarray, size: tuple[int, int] | None, unreadable: list[str],
+           mismatched: list[str]) -> np.ndarray | None:
+    """The frame of ``path`` for the pipeline, or None (listed in ``unreadable``, in ``mismatched`` when it does not
+    hold the points or is not of the clip's ``size`` (None: not known yet), or without a file)."""
     if path is None:
         return None
     try:
@@ -213,13 +215,13 @@ def _frame(path: Path | None, extent: np.ndarray, unreadable: list[str], mismatc
     except ValueError:
         unreadable.append(path.name)
         return None
-    if not holds_points(frame.shape, extent):
+    if not holds_points(frame.shape, extent) or size not in (None, frame.shape[:2]):
         mismatched.append(f"{path.name} ({frame.shape[1]}x{frame.shape[0]})")
         return None
     return frame
 
 
-def _why_skipped(n: int, unreadable: list[str], mismatched: list[str], extent: np.ndarray) -> str:
+def _why_skipped(unreadable: list[str], mismatched: list[str], extent: np.ndarray) -> str:
     """Why a clip had no frame for the pipeline."""
     if mismatched:
         return (f"its frames ({', '.join(mismatched[:3])}{', ...' if len(mismatched) > 3 else ''}) do not hold its "
@@ -227,7 +229,7 @@ def _why_skipped(n: int, unreadable: list[str], mismatched: list[str], extent: n
                 f"tracked on (resized?)")
     if unreadable:
         return f"no readable frame ({len(unreadable)} unreadable)"
-    return "no frames" if n == 0 else "no frame file for a trajectory frame"
+    return "no frames"
 
 
 def evaluate(root: Path, config: PipelineConfig = PipelineConfig(),
@@ -236,7 +238,11 @@ def evaluate(root: Path, config: PipelineConfig = PipelineConfig(),
     clips skipped, each with the reason."""
     scores, skipped = [], {}
     for path in find_clips(root):
-        clip = load_clip(path)
+        try:
+            clip = load_clip(path)
+        except ValueError as error:
+            skipped[path.stem.removesuffix("_Tracks")] = str(error)
+            continue
         folder = frames_folder(root, clip.name)
         files = image_files(folder, FRAME_SUFFIXES) if folder else []
         try:
@@ -319,11 +325,3 @@ def run(args: argparse.Namespace) -> int:
         write_json(args.json, {**means, **totals, "live_hz": args.live, "clips": [asdict(s) for s in scores]})
     return 0
 
-
-def print_skipped(skipped: dict[str, str]) -> None:
-    """One line per reason: the clips skipped for it."""
-    by_reason: dict[str, list[str]] = {}
-    for clip, reason in skipped.items():
-        by_reason.setdefault(reason, []).append(clip)
-    for reason, clips in by_reason.items():
-        print(f"skipped ({reason}): {', '.join(clips)}")

@@ -1,4 +1,5 @@
-"""The evaluations' JSON reports: strict JSON, with a figure that has no value (NaN: nothing to count) as null."""
+"""What the evaluations report beside their figures: strict JSON, with a figure that has no value (NaN: nothing to
+count) as null, and the clips they skipped with the reason."""
 
 from __future__ import annotations
 
@@ -22,3 +23,16 @@ def without_nan(value: Any) -> Any:
 def write_json(path: Path, report: dict[str, Any]) -> None:
     """Write ``report`` to ``path`` as strict JSON (``without_nan``), indented, with a final newline."""
     path.write_text(json.dumps(without_nan(report), indent=2, allow_nan=False) + "\n")
+
+
+class ClipSkipped(Exception):
+    """A clip with nothing to score; its message says why."""
+
+
+def print_skipped(skipped: dict[str, str]) -> None:
+    """One line per reason: the clips (``skipped``: clip -> reason) skipped for it."""
+    by_reason: dict[str, list[str]] = {}
+    for clip, reason in skipped.items():
+        by_reason.setdefault(reason, []).append(clip)
+    for reason, clips in by_reason.items():
+        print(f"skipped ({reason}): {', '.join(clips)}")
