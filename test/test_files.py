@@ -30,6 +30,11 @@ class TestImageFiles:
         assert [p.name for p in image_files(tmp_path, (".jpg", ".png"))] == ["1.png", "2.jpg", "10.JPG"]
         assert image_files(tmp_path / "absent", (".jpg",)) == []
 
+    def test_one_file_per_stem(self, tmp_path):
+        for name in ("00000.png", "00000.jpg", "00001.png"):
+            (tmp_path / name).write_bytes(b"")
+        assert [p.name for p in image_files(tmp_path, (".jpg", ".png"))] == ["00000.jpg", "00001.png"]
+
 
 class TestFrameNumber:
     def test_known_values(self):

@@ -21,12 +21,16 @@ def natural_key(name: str) -> tuple[tuple[int, int | str], ...]:
 
 def image_files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     """The files of ``folder`` whose suffix is one of ``suffixes`` (lower case, matched in any case), in natural
-    order (``natural_key``); hidden files (a leading dot: macOS's ._ companions) are left out. [] when the folder
-    is absent."""
+    order (``natural_key``), one per stem (a frame saved as 00042.jpg and 00042.png is one frame: the suffix
+    earlier in ``suffixes`` is kept); hidden files (a leading dot: macOS's ._ companions) are left out. [] when the
+    folder is absent."""
     if not folder.is_dir():
         return []
     files = (p for p in folder.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in suffixes)
-    return sorted(files, key=lambda p: natural_key(p.name))
+    by_stem: dict[str, Path] = {}
+    for path in sorted(files, key=lambda p: suffixes.index(p.suffix.lower())):
+        by_stem.setdefault(path.stem, path)
+    return sorted(by_stem.values(), key=lambda p: natural_key(p.name))
 
 
 def frame_number(path: Path) -> int | None:
