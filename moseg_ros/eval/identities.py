@@ -39,11 +39,6 @@ def instance_holdings(published: np.ndarray, truth: np.ndarray, objects: np.ndar
     return held.astype(np.int64), strong.sum(axis=1).astype(np.int64)
 
 
-def majority_instances(published: np.ndarray, truth: np.ndarray, objects: np.ndarray) -> np.ndarray:
-    """(K,) int64: each object's instance (``instance_holdings``' first array)."""
-    return instance_holdings(published, truth, objects)[0]
-
-
 class InstanceFollow:
     """Counts, per true object, the id switches, the shared frames and the split frames of its published instance
     (the module's docstring), one frame at a time; ``switches``, ``shared`` and ``split`` are Counters by object

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from moseg_ros.io.frames import eight_bit
 from moseg_ros.io.image import ImageDecodeError, decode_image_bytes
 
 _DIGITS = re.compile(r"(\d+)")
@@ -47,5 +48,4 @@ def read_frame(path: Path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as error:
         raise ImageDecodeError(f"cannot read {path}: {error.strerror or error}") from None
-    pixels = decode_image_bytes(data, str(path))
-    return (pixels >> 8).astype(np.uint8) if pixels.dtype == np.uint16 else pixels
+    return eight_bit(decode_image_bytes(data, str(path)))

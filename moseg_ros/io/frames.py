@@ -19,12 +19,16 @@ def decode_frame(msg: Any, max_pixels: int | None = None) -> np.ndarray:
     an image whose declared size (raw: height x width; compressed: the header's) exceeds ``max_pixels``.
     """
     if hasattr(msg, "format"):
-        frame = compressed_to_array(msg, max_pixels)
-        return (frame >> 8).astype(np.uint8) if frame.dtype == np.uint16 else frame
+        return eight_bit(compressed_to_array(msg, max_pixels))
     pixels = image_to_array(msg, max_pixels)
     if msg.encoding in GREY_ENCODINGS:
         return to_gray(pixels, msg.encoding)
     return to_rgb(pixels, msg.encoding)
+
+
+def eight_bit(pixels: np.ndarray) -> np.ndarray:
+    """A decoded image (``compressed_to_array``'s) as the pipeline's frame: 16-bit grey keeps its high byte."""
+    return (pixels >> 8).astype(np.uint8) if pixels.dtype == np.uint16 else pixels
 
 
 def decode_instances(msg: Any) -> np.ndarray:
