@@ -16,10 +16,9 @@ pixel precision and recall pooled over the clip's frames, and ms per frame (the 
 mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
 ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
 positives. Clips without annotations, without frames or without a scored frame are listed and skipped, with the
-reason. A frame
-or annotation that cannot be read is skipped, as the node skips an undecodable image (the pipeline never sees
-such a frame, and it is not scored), and listed under its clip (``unreadable``). A figure with nothing to count
-is NaN, written as null in the JSON.
+reason. A frame or annotation that cannot be read is skipped, as the node skips an undecodable image (the pipeline
+never sees such a frame, and it is not scored), and listed under its clip (``unreadable``). A figure with nothing
+to count is NaN, written as null in the JSON.
 """
 
 from __future__ import annotations

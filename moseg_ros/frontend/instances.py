@@ -114,15 +114,15 @@ def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, 
         window = np.s_[ys.min():ys.max() + 1, xs.min():xs.max() + 1]
         inside = regions[window] == region
         members = np.flatnonzero(taken & (host == region))
+        here = previous[window]
         mover = np.zeros(n_prev + 1, dtype=np.int64)
         mover[members] = members
         if flow is not None:
-            here = previous[window]
             medians = np.array([np.median(flow[window][inside & (here == m)], axis=0) for m in members])
             mover[members] = members[same_motion(medians, motion_ratio)]
         if np.unique(mover[members]).size < 2:
             continue
-        nearest = nearest_seed(np.where(inside, mover[previous[window]], 0))
+        nearest = nearest_seed(np.where(inside, mover[here], 0))
         parts = np.unique(nearest[inside])
         numbers = np.zeros(int(parts.max()) + 1, dtype=np.int32)
         numbers[parts] = np.concatenate([[region], np.arange(next_label, next_label + parts.size - 1)])
