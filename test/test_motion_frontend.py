@@ -376,6 +376,39 @@ def test_the_far_oncoming_car_is_flagged_from_its_first_frames(monkeypatch):
     assert max(before[3:5]) < 0.05 and before[7] < 0.5, before
 
 
+class TestDepthEvidence:
+    """``MotionFrontEnd.depth``: the pixels whose evidence came from the depth tests (object_fusion's exemption)."""
+
+    def test_the_far_oncoming_car_is_depth_evidence_and_little_else(self):
+        sequence = render_sequence("oncoming", seed=1, n_frames=8, width=621, height=188)
+        car = next(obj for obj, name in sequence.object_names.items() if name.startswith("car_oncoming"))
+        front_end = MotionFrontEnd()
+        on_car, off_car = [], []
+        for frame in sequence.frames:
+            front_end.update(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
+            assert front_end.depth.shape == frame.instances.shape
+            on_car.append(int((front_end.depth & (frame.instances == car)).sum()))
+            off_car.append(int((front_end.depth & (frame.instances != car)).sum()))
+        assert min(on_car[2:5]) > 200, on_car
+        assert sum(off_car) < 0.1 * sum(on_car), off_car
+
+    def test_the_sliding_blocks_evidence_is_its_epipolar_distance_not_depth(self):
+        front_end = MotionFrontEnd()
+        for frame in textured_frames(8):
+            labels = front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+        assert (labels > 0).sum() > 3000 and not front_end.depth.any()
+
+    def test_the_window_frame_is_the_regions_with_the_flow_back_and_the_tracks_at_the_dense_size(self):
+        front_end = MotionFrontEnd(MotionFrontEndConfig(dense_width=320))
+        frames = textured_frames(3)
+        for frame in frames:
+            labels = front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+        window_frame = front_end.window_frame(labels)
+        assert window_frame.labels is labels and window_frame.flow.shape == (*labels.shape, 2)
+        assert window_frame.track_points.shape == (window_frame.track_ids.size, 2)
+        assert window_frame.track_points[:, 0].max() < labels.shape[1]
+
+
 class TestAwayFromBorder:
     def test_shape_and_known_values(self):
         points = np.array([[5.0, 5.0], [2.0, 10.0], [17.0, 10.0], [10.0, 2.9], [10.0, 17.0]])

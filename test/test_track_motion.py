@@ -14,7 +14,7 @@ from conftest import oncoming_street_flow, pan_follow_flow
 from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
 from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
-                                         beyond_allowance, decided_ratios, dense_parallax, far_behind,
+                                         beyond_allowance, decided_ratios, dense_parallax, depth_moving, far_behind,
                                          footing_allowance, footing_columns, footing_excess, ground_floor,
                                          ground_parallax_ratio,
                                          ground_slope, guessed_camera_matrix, may_be_planar, moving_tracks,
@@ -206,6 +206,22 @@ class TestMovingTracks:
     @pytest.mark.parametrize("shape", [(0, 3), (4, 0)])
     def test_nothing_measured_flags_nothing(self, shape):
         assert not moving_tracks(np.full(shape, np.nan, dtype=np.float32)).any()
+
+
+class TestDepthMoving:
+    def test_only_the_depth_tests_part_of_moving_tracks(self):
+        # Track 0 by its epipolar distance alone, 1 behind infinity, 2 short of the ground's ratio, 3 nearer than
+        # the road under it (footing), 4 by nothing.
+        residuals = np.array([[3.0], [0.2], [0.2], [0.2], [0.2]], dtype=np.float32)
+        signed = np.array([[5.0], [-4.0], [5.0], [5.0], [5.0]], dtype=np.float32)
+        ground = np.array([[0.9], [0.9], [0.1], [0.9], [0.9]], dtype=np.float32)
+        footing = np.array([[0.0], [0.0], [0.0], [3.0], [0.0]], dtype=np.float32)
+        tests = dict(signed=signed, ground=ground, footing=footing)
+        assert np.flatnonzero(moving_tracks(residuals, **tests)).tolist() == [0, 1, 2, 3]
+        assert np.flatnonzero(depth_moving(5, **tests)).tolist() == [1, 2, 3]
+
+    def test_without_depth_tests_nothing(self):
+        assert depth_moving(3).tolist() == [False, False, False]
 
 
 def test_a_planar_pan_uses_the_homography_so_the_mover_stands_out():

@@ -34,3 +34,19 @@ def test_arrays_follow_the_last_frames_and_mark_visibility():
 def test_window_needs_two_frames():
     with pytest.raises(ValueError, match="at least 2"):
         Window(length=1)
+
+
+def test_a_backward_window_comes_newest_first_with_each_frames_own_flow():
+    window = Window(length=3, backward=True)
+    for t, ids in enumerate([[1, 2], [2, 3], [2, 3, 4], [3, 5]]):
+        window.push(_frame(t, ids))
+    labels, flows, xy, visible = window.arrays()
+    assert labels[:, 0, 0].tolist() == [3, 2, 1]
+    # Frame 3's flow back to frame 2 is the first pair's, read at frame 3's pixels; frame 1's (to frame 0, which
+    # fell out) is left out.
+    assert flows.shape == (2, 4, 5, 2) and flows[:, 0, 0, 0].tolist() == [3, 2]
+    assert visible.tolist() == [[False, True, True],      # id 2
+                                [True, True, True],       # id 3
+                                [False, True, False],     # id 4
+                                [True, False, False]]     # id 5
+    assert xy[1, :, 1].tolist() == [3, 2, 1]

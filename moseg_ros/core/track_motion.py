@@ -883,6 +883,17 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
     if dense is not None and config.corroboration > 0:
         doubted = dense < config.corroboration * per_track  # NaN compares False
         moving &= ~doubted | (per_track > config.evident_factor * threshold)
+    return moving | depth_moving(residuals.shape[0], config, signed, ground, footing, shortfall, measurable)
+
+
+def depth_moving(n: int, config: TrackMotionConfig = TrackMotionConfig(), signed: np.ndarray | None = None,
+                 ground: np.ndarray | None = None, footing: np.ndarray | None = None,
+                 shortfall: np.ndarray | None = None, measurable: np.ndarray | None = None) -> np.ndarray:
+    """(N,) bool: the part of ``moving_tracks`` that the depth tests flag (cheirality, the ground's ratio and
+    shortfall, the footing): tracks whose motion lies along their epipolar lines, which no epipolar distance
+    and no model of an object's own motion shows (a car driving along the camera's axis images as a static copy
+    of it: docs/experiments.md). The arguments are ``moving_tracks``' (N: the number of tracks)."""
+    moving = np.zeros(n, dtype=bool)
     if signed is not None:
         moving |= _median_below(signed, -config.cheir_px)
     if ground is not None:

@@ -75,13 +75,15 @@ from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, shrink
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.robust import fundamental_polished, homography_ransac
 from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
-                                         behind_infinity, beyond_allowance, dense_parallax, guessed_camera_matrix,
-                                         moving_tracks, nearer_than_road, pair_evidence, short_of_ground)
+                                         behind_infinity, beyond_allowance, dense_parallax, depth_moving,
+                                         guessed_camera_matrix, moving_tracks, nearer_than_road, pair_evidence,
+                                         short_of_ground)
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, remembered
 from moseg_ros.frontend.regions import hull_mask, linked_groups, touching
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
+from moseg_ros.frontend.window import WindowFrame
 from moseg_ros.timing import Stages
 
 
@@ -323,7 +325,8 @@ class Refit:
     the dense residual mask of frame ``dense_index`` (``index`` when both were fitted on it; an earlier frame's
     when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet) and the part of
     it the depth tests flagged (``dense_depth``), and whether its residual was against a homography
-    (``dense_planar``); ``stages`` times the work done for frame ``index``."""
+    (``dense_planar``); ``stages`` times the work done for frame ``index``. ``depth_flagged``: the flagged tracks
+    that the depth tests flagged (``depth_moving``), now or while they have stayed flagged since."""
 
     index: int
     flagged: np.ndarray
@@ -332,6 +335,7 @@ class Refit:
     dense_index: int
     dense_depth: np.ndarray | None = None
     dense_planar: bool = False
+    depth_flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 class MotionFrontEnd:
@@ -372,6 +376,7 @@ class MotionFrontEnd:
         self.reset_refit()
         self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
         self.moving = np.zeros((0, 0), dtype=bool)
+        self.depth = np.zeros((0, 0), dtype=bool)
         # The last frame's evidence ages (``remembered``) and its index.
         self._memory: tuple[int, np.ndarray] | None = None
         # The refit dense mask the last frame applied: (refit's frame, the frame it was carried to, the mask there).
@@ -392,6 +397,7 @@ class MotionFrontEnd:
         self._flag_ids = np.zeros(0, dtype=np.int64)
         self._flag_counts = np.zeros(0, dtype=np.int64)
         self._flag_last = np.zeros(0, dtype=np.int64)
+        self._depth_ids = np.zeros(0, dtype=np.int64)  # flagged tracks the depth tests flagged (Refit.depth_flagged)
         self._counted_through: int | None = None  # the frame of the last refit whose flags were counted
         # The last refit's own dense mask (before hysteresis) and its frame.
         self._last_dense: tuple[int, np.ndarray] | None = None
@@ -457,10 +463,11 @@ class MotionFrontEnd:
         background worker hands it over before it fits the dense half."""
         stages = Stages()
         with stages("fit"):
-            flagged = self._flagged(observation)
+            flagged, depth = self._flagged(observation)
         if self._published_dense is None:
-            return Refit(observation.index, flagged, None, stages.seconds, -1)
-        return replace(self._published_dense, index=observation.index, flagged=flagged, stages=stages.seconds)
+            return Refit(observation.index, flagged, None, stages.seconds, -1, depth_flagged=depth)
+        return replace(self._published_dense, index=observation.index, flagged=flagged, depth_flagged=depth,
+                       stages=stages.seconds)
 
     def refit_dense(self, observation: Observation, tracks: Refit) -> Refit:
         """``tracks`` (this observation's ``refit_tracks``) with this observation's dense residual mask, whose
@@ -503,8 +510,11 @@ class MotionFrontEnd:
                                self.config.hull_reach * link_px)
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
+            self.depth = self._depth_points(refit, here, small, scale)
             if refit is not None and refit.dense is not None:
-                moving |= self._confirmed(self._carried(refit), refit)
+                carried_labels = self._carried(refit)
+                moving |= self._confirmed(carried_labels, refit)
+                self.depth |= carried_labels == DEPTH_LABEL
             moving = self._remembered(moving, settled)
             evidence = moving
             moving = self._coasted(moving, settled, scale)
@@ -513,6 +523,25 @@ class MotionFrontEnd:
                                           self._flow_here())
             self._published = (self._index, labels, evidence)
             return labels
+
+    def window_frame(self, labels: np.ndarray) -> WindowFrame:
+        """The current frame as an object-level window of this front-end's regions takes it (``Window(backward=
+        True)``, frontend/window.py): ``labels`` (its regions, (h, w) at the dense size), its dense flow back to the
+        frame before (None without one) and its tracks at the dense size."""
+        ids, points = self._frames[-1]
+        scale = self._grays[-1].shape[1] / self._tracking_shape[1]
+        return WindowFrame(labels, self._flow_here(), ids.copy(), (points * scale).astype(np.float32))
+
+    def _depth_points(self, refit: Refit | None, here: np.ndarray, small: tuple[int, int],
+                      scale: float) -> np.ndarray:
+        """(h, w) bool: the pixels under the drawn tracks (``here``) that the depth tests flagged."""
+        depth = np.zeros(small, dtype=bool)
+        if refit is None:
+            return depth
+        on_depth = here & np.isin(self._points.ids, refit.depth_flagged)
+        xy = np.clip(np.rint(self._points.points[on_depth] * scale).astype(np.int64), 0, [small[1] - 1, small[0] - 1])
+        depth[xy[:, 1], xy[:, 0]] = True
+        return depth
 
     def _coasted(self, moving: np.ndarray, settled: np.ndarray, scale: float) -> np.ndarray:
         """``moving`` with the last frame's lasting regions whose evidence dropped out drawn where their tracks
@@ -633,10 +662,11 @@ class MotionFrontEnd:
             return dense
         return dense | touching(carried(last[1], last[0], observation.backward), dense)
 
-    def _flagged(self, observation: Observation) -> np.ndarray:
-        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows); a track's
-        epipolar distance counts only where the last dense residual near it corroborates it
-        (``TrackMotionConfig.corroboration``, ``_dense_near``)."""
+    def _flagged(self, observation: Observation) -> tuple[np.ndarray, np.ndarray]:
+        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows), and of
+        those among them the depth tests flagged (this window, or in an earlier one while they stayed flagged:
+        ``Refit.depth_flagged``); a track's epipolar distance counts only where the last dense residual near it
+        corroborates it (``TrackMotionConfig.corroboration``, ``_dense_near``)."""
         self._catch_up(observation)
         newest = None
         if observation.pair is not None:
@@ -650,7 +680,7 @@ class MotionFrontEnd:
             long = self._fit_pair(*observation.long_pair, observation.camera_matrix,
                                   observation.long_span)
         if not self._pairs:
-            return np.zeros(0, dtype=np.int64)
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
         # (distance, signed, ground, footing, shortfall) x (track, pair), NaN where a pair did not measure it; the
         # last column is the long pair's, which gives only the ground, footing and shortfall tests.
@@ -670,10 +700,13 @@ class MotionFrontEnd:
                 if values is not None:
                     named[name][rows, -1] = values[known]
         short = short_of_ground(named["shortfall"])
+        measurable = self._measurable(ids, observation, short)
         flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
-                                    dense=self._dense_near(ids, observation),
-                                    measurable=self._measurable(ids, observation, short))]
-        return np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
+                                    dense=self._dense_near(ids, observation), measurable=measurable)]
+        flagged = np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
+        depth = ids[depth_moving(ids.size, self.config.track_motion, *tables[1:], measurable=measurable)]
+        self._depth_ids = np.union1d(np.intersect1d(self._depth_ids, flagged), np.intersect1d(depth, flagged))
+        return flagged, self._depth_ids
 
     def _catch_up(self, observation: Observation) -> None:
         """Fit the track pairs of up to ``catch_up_pairs`` frames, the newest first, of those since the last refit

@@ -42,6 +42,7 @@ from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
                                       scaled_to)
 from moseg_ros.methods.base import Decision, FrameInput, Status
+from moseg_ros.methods.object_fusion import ObjectFusion
 from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
@@ -81,6 +82,7 @@ class MovingObjects:
         self.config = config
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
+        self._fusion = ObjectFusion(config.window_length) if config.object_fusion else None
         # How long the worker's last track half (refit_tracks) and last whole refit took, and the time between the
         # last two frames' submissions (the camera's frame interval as the worker sees it).
         self._track_seconds = self._whole_seconds = self._frame_interval = 0.0
@@ -99,6 +101,8 @@ class MovingObjects:
         self._whole_wanted = -1  # the newest frame that waits for its whole refit
         self._warmed_up = False
         self._instance_decisions.reset()
+        if self._fusion is not None:
+            self._fusion.reset()
 
     def _reset_refit(self) -> None:
         """The front-end's reset and the worker's own count (run while no refit runs)."""
@@ -120,10 +124,9 @@ class MovingObjects:
         first = observation.index == 0
         if frame.instances is not None:
             decision = self._decide_instances(frame.instances, labels, frame.full.shape[1], first)
-        elif first or refit is None:
-            decision = Decision(labels, status=Status.WARMUP)
         else:
-            decision = Decision(labels, np.unique(labels[labels > 0]).astype(np.int32))
+            moving = self._moving_regions(labels)
+            decision = Decision(labels, status=Status.WARMUP) if first or refit is None else Decision(labels, moving)
         decision.stages = dict(self._front_end.stages.seconds)
         if waited > 0:
             decision.stages["refit_wait"] = waited
@@ -135,6 +138,16 @@ class MovingObjects:
             if self._worker is None:
                 decision.stages.update(refit.stages)
         return decision
+
+    def _moving_regions(self, labels: np.ndarray) -> np.ndarray:
+        """(D,) int32 ids of the front-end's regions that move: every one, or with ``object_fusion`` those the
+        fused object-level decision keeps (methods/object_fusion.py; every frame goes into its window)."""
+        regions = np.unique(labels[labels > 0]).astype(np.int32)
+        if self._fusion is None:
+            return regions
+        with self._front_end.stages("fusion"):  # timed with the frame's stages
+            standing = np.unique(labels[self._front_end.depth & (labels > 0)])
+            return self._fusion.decide(self._front_end.window_frame(labels), regions, standing)
 
     def _wait_seconds(self, frame: FrameInput) -> tuple[float, bool]:
         """How long this frame may wait for its own background refit, and whether for the whole of it (else for
