@@ -377,7 +377,7 @@ def test_the_far_oncoming_car_is_flagged_from_its_first_frames(monkeypatch):
 
 
 class TestDepthEvidence:
-    """``MotionFrontEnd.depth``: the pixels whose evidence came from the depth tests (object_fusion's exemption)."""
+    """``MotionFrontEnd.depth()``: the pixels whose evidence came from the depth tests (object_fusion's exemption)."""
 
     def test_the_far_oncoming_car_is_depth_evidence_and_little_else(self):
         sequence = render_sequence("oncoming", seed=1, n_frames=8, width=621, height=188)
@@ -386,9 +386,9 @@ class TestDepthEvidence:
         on_car, off_car = [], []
         for frame in sequence.frames:
             front_end.update(cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY))
-            assert front_end.depth.shape == frame.instances.shape
-            on_car.append(int((front_end.depth & (frame.instances == car)).sum()))
-            off_car.append(int((front_end.depth & (frame.instances != car)).sum()))
+            assert front_end.depth().shape == frame.instances.shape
+            on_car.append(int((front_end.depth() & (frame.instances == car)).sum()))
+            off_car.append(int((front_end.depth() & (frame.instances != car)).sum()))
         assert min(on_car[2:5]) > 200, on_car
         assert sum(off_car) < 0.1 * sum(on_car), off_car
 
@@ -396,7 +396,7 @@ class TestDepthEvidence:
         front_end = MotionFrontEnd()
         for frame in textured_frames(8):
             labels = front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
-        assert (labels > 0).sum() > 3000 and not front_end.depth.any()
+        assert (labels > 0).sum() > 3000 and not front_end.depth().any()
 
     def test_the_window_frame_is_the_regions_with_the_flow_back_and_the_tracks_at_the_dense_size(self):
         front_end = MotionFrontEnd(MotionFrontEndConfig(dense_width=320))

@@ -376,7 +376,8 @@ class MotionFrontEnd:
         self.reset_refit()
         self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
         self.moving = np.zeros((0, 0), dtype=bool)
-        self.depth = np.zeros((0, 0), dtype=bool)
+        # The refit the last frame applied and which of its tracks it drew (``depth``).
+        self._applied: tuple[Refit | None, np.ndarray] | None = None
         # The last frame's evidence ages (``remembered``) and its index.
         self._memory: tuple[int, np.ndarray] | None = None
         # The refit dense mask the last frame applied: (refit's frame, the frame it was carried to, the mask there).
@@ -510,11 +511,9 @@ class MotionFrontEnd:
                                self.config.hull_reach * link_px)
             if self.config.object_flow is not None:
                 moving = self._refined(moving, here, group, scale, link_px)
-            self.depth = self._depth_points(refit, here, small, scale)
+            self._applied = (refit, here)
             if refit is not None and refit.dense is not None:
-                carried_labels = self._carried(refit)
-                moving |= self._confirmed(carried_labels, refit)
-                self.depth |= carried_labels == DEPTH_LABEL
+                moving |= self._confirmed(self._carried(refit), refit)
             moving = self._remembered(moving, settled)
             evidence = moving
             moving = self._coasted(moving, settled, scale)
@@ -532,15 +531,22 @@ class MotionFrontEnd:
         scale = self._grays[-1].shape[1] / self._tracking_shape[1]
         return WindowFrame(labels, self._flow_here(), ids.copy(), (points * scale).astype(np.float32))
 
-    def _depth_points(self, refit: Refit | None, here: np.ndarray, small: tuple[int, int],
-                      scale: float) -> np.ndarray:
-        """(h, w) bool: the pixels under the drawn tracks (``here``) that the depth tests flagged."""
+    def depth(self) -> np.ndarray:
+        """(h, w) bool at the dense size: the last applied frame's evidence that came from the depth tests
+        (cheirality, the ground's, the footing: motion along the epipolar lines), the pixels under its drawn
+        tracks that they flagged (``Refit.depth_flagged``) and its dense depth mask carried to it. Worked out when
+        asked (methods/object_fusion.py), not on every frame."""
+        small = self._grays[-1].shape
         depth = np.zeros(small, dtype=bool)
-        if refit is None:
+        if self._applied is None or self._applied[0] is None:
             return depth
+        refit, here = self._applied
+        scale = small[1] / self._tracking_shape[1]
         on_depth = here & np.isin(self._points.ids, refit.depth_flagged)
         xy = np.clip(np.rint(self._points.points[on_depth] * scale).astype(np.int64), 0, [small[1] - 1, small[0] - 1])
         depth[xy[:, 1], xy[:, 0]] = True
+        if self._carry is not None and self._carry[1] == self._index:
+            depth |= self._carry[2] == DEPTH_LABEL
         return depth
 
     def _coasted(self, moving: np.ndarray, settled: np.ndarray, scale: float) -> np.ndarray:

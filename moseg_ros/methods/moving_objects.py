@@ -146,7 +146,7 @@ class MovingObjects:
         if self._fusion is None:
             return regions
         with self._front_end.stages("fusion"):  # timed with the frame's stages
-            standing = np.unique(labels[self._front_end.depth & (labels > 0)])
+            standing = np.unique(labels[self._front_end.depth() & (labels > 0)])
             return self._fusion.decide(self._front_end.window_frame(labels), regions, standing)
 
     def _wait_seconds(self, frame: FrameInput) -> tuple[float, bool]:

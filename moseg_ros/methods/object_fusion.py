@@ -5,7 +5,7 @@ frame before and its tracks fill a window (frontend/window.py, newest first), an
 fits an epipolar model on each region's trajectories and a quadratic flow model on each region's flow, builds
 the two ORK affinities, fuses them by co-regularized spectral clustering and finds the background's cluster,
 every frame. A region moves when it lies outside that cluster, or when the depth tests flagged it (footing,
-ground, cheirality: ``MotionFrontEnd.depth``), which play the ground-contact test's part: a car driving along
+ground, cheirality: ``MotionFrontEnd.depth()``), which play the ground-contact test's part: a car driving along
 the camera's axis images exactly as a static copy of it, so its own motion models are a static object's and
 only where it stands tells it from a parked car (docs/experiments.md has the derivation). The paper's own
 ground-contact test (core/ground.py) is left out: on real streets it rejected most movers.
