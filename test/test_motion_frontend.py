@@ -376,6 +376,23 @@ def test_the_far_oncoming_car_is_flagged_from_its_first_frames(monkeypatch):
     assert max(before[3:5]) < 0.05 and before[7] < 0.5, before
 
 
+def test_the_pairs_are_fitted_with_the_settings_for_the_tracking_width(monkeypatch):
+    import moseg_ros.frontend.motion as motion
+
+    widths = []
+    fit = motion.pair_evidence
+
+    def recorded(x1, x2, config, *args, **kwargs):
+        widths.append(config.shortfall_strong_px)
+        return fit(x1, x2, config, *args, **kwargs)
+
+    monkeypatch.setattr(motion, "pair_evidence", recorded)
+    front_end = MotionFrontEnd()
+    for frame in textured_frames(4):  # 621 px wide: half of KITTI's
+        front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
+    assert widths and set(widths) == {TrackMotionConfig().shortfall_strong_px * 621 / 1242}
+
+
 class TestDepthEvidence:
     """``MotionFrontEnd.depth()``: the pixels whose evidence came from the depth tests (object_fusion's exemption)."""
 

@@ -13,7 +13,8 @@ import pytest
 from conftest import oncoming_street_flow, pan_follow_flow
 from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
-from moseg_ros.core.track_motion import (Parallax, TrackMotionConfig, _band_below, aperture_share, behind_infinity,
+from moseg_ros.core.track_motion import (REFERENCE_WIDTH, Parallax, TrackMotionConfig, _band_below, aperture_share,
+                                         behind_infinity,
                                          beyond_allowance, decided_ratios, dense_parallax, depth_moving, far_behind,
                                          footing_allowance, footing_columns, footing_excess, ground_floor,
                                          ground_parallax_ratio,
@@ -46,6 +47,15 @@ def street(n_static: int = 400, n_mover: int = 30, frames: int = 6, seed: int = 
         tracks.append(np.vstack([project(static, camera), project(moved, camera)]))
     tracks = np.stack(tracks, axis=1) + rng.normal(0, 0.2, (n_static + n_mover, frames, 2))
     return tracks.astype(np.float32), np.r_[np.zeros(n_static, bool), np.ones(n_mover, bool)]
+
+
+class TestForWidth:
+    def test_the_strong_shortfall_in_proportion_to_the_width_and_nothing_else(self):
+        config = TrackMotionConfig()
+        assert config.for_width(REFERENCE_WIDTH) == config
+        half = config.for_width(REFERENCE_WIDTH // 2)
+        assert half.shortfall_strong_px == pytest.approx(config.shortfall_strong_px / 2)
+        assert dataclasses.replace(half, shortfall_strong_px=config.shortfall_strong_px) == config
 
 
 class TestPairResidual:

@@ -94,9 +94,14 @@ from moseg_ros.core.geometry import homography_preferred, homography_transfer_er
 from moseg_ros.core.robust import fundamental_polished, homography_ransac
 
 
+# The tracking width that the width-relative pixel settings are given at (``TrackMotionConfig.for_width``): KITTI's.
+REFERENCE_WIDTH = 1242
+
+
 @dataclass(frozen=True)
 class TrackMotionConfig:
-    """Settings of the per-track epipolar test (pixels at the tracking resolution)."""
+    """Settings of the per-track epipolar test (pixels at the tracking resolution; ``shortfall_strong_px`` at
+    ``REFERENCE_WIDTH``, see ``for_width``)."""
 
     gap: int = 2
     # The homographies' RANSAC threshold; F's inliers are the tracks within ``inlier_px`` of its epipolar lines
@@ -145,7 +150,9 @@ class TrackMotionConfig:
     # A track short by this many pixels needs only this share of the floor: the 0.6 guards against a floor read
     # at the wrong row (the road in front of an object taken for its foot), an error of a share that shrinks as
     # the parallax grows (a row more or less matters less below the horizon than near it), while a pedestrian
-    # walking away keeps 0.7-0.9 of the road's parallax. 0: off.
+    # walking away keeps 0.7-0.9 of the road's parallax. 0: off. Pixels at ``REFERENCE_WIDTH``, in proportion at
+    # other tracking widths (``for_width``): the walker's shortfall is a share of its parallax, which shrinks with
+    # the image, and at 621 px the 4 px it falls short by at KITTI's size are 2 (docs/experiments.md).
     shortfall_strong_px: float = 4.0
     shortfall_strong_ratio: float = 0.9
     # The shortfall is measured at the row the track's object stands on: the lowest track of its column at its own
@@ -181,6 +188,11 @@ class TrackMotionConfig:
     # moved 52 px over a pair at the median (the flagged movers of KT3DMoSeg 17 px), their distance 0.027 of
     # it (the movers' 0.16; docs/experiments.md).
     epipole_allowance: float = 0.03
+
+    def for_width(self, width: int) -> TrackMotionConfig:
+        """These settings for tracks at ``width`` pixels: ``shortfall_strong_px`` in proportion to
+        ``REFERENCE_WIDTH``, every other one as it is."""
+        return replace(self, shortfall_strong_px=self.shortfall_strong_px * width / REFERENCE_WIDTH)
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:

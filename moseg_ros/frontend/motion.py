@@ -676,15 +676,14 @@ class MotionFrontEnd:
         self._catch_up(observation)
         newest = None
         if observation.pair is not None:
-            newest = self._fit_pair(*observation.pair, observation.camera_matrix)
+            newest = self._fit_pair(*observation.pair, observation)
             if newest is not None:
                 self._pairs.append(newest)
         # The long pair is fitted only while the newest short pair decides a sign (a translating camera, F
         # not degenerate): the ground and footing tests need nothing else.
         long = None
         if observation.long_pair is not None and newest is not None and newest[1].signed is not None:
-            long = self._fit_pair(*observation.long_pair, observation.camera_matrix,
-                                  observation.long_span)
+            long = self._fit_pair(*observation.long_pair, observation, observation.long_span)
         if not self._pairs:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
         ids = np.unique(np.concatenate([pair[0] for pair in self._pairs]))
@@ -723,7 +722,7 @@ class MotionFrontEnd:
         missed = range(max(self._fitted_through + 1, first + gap), observation.index)
         for index in missed[max(len(missed) - self.config.catch_up_pairs, 0):]:
             now = observation.window[index - first]
-            fitted = self._fit_pair(*observation.window[index - first - gap], *now, observation.camera_matrix)
+            fitted = self._fit_pair(*observation.window[index - first - gap], *now, observation)
             if fitted is not None:
                 self._pairs.append(fitted)
         self._fitted_through = observation.index
@@ -788,12 +787,14 @@ class MotionFrontEnd:
         self._flag_ids, self._flag_counts, self._flag_last = ids, counts, last
         return ids[(counts >= self.config.sticky_windows) & (index - last <= self.config.sticky_frames)]
 
-    def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, K: np.ndarray,
+    def _fit_pair(self, ids1: np.ndarray, x1: np.ndarray, ids2: np.ndarray, x2: np.ndarray, observation: Observation,
                   frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
         """(ids, evidence) of the tracks seen in both frames of a pair ``frames`` apart (default: ``gap``; a
-        longer pair skips the planar check, see ``_flagged``), guarded against a misjudged rotation whatever K
-        is (core/track_motion.py: in KITTI 07's corner camera_info's K let a house pass for a mover)."""
-        config = self.config.track_motion
+        longer pair skips the planar check, see ``_flagged``) of ``observation``'s window, at its tracking size,
+        guarded against a misjudged rotation whatever its K is (core/track_motion.py: in KITTI 07's corner
+        camera_info's K let a house pass for a mover)."""
+        config = self.config.track_motion.for_width(observation.tracking_shape[1])
+        K = observation.camera_matrix
         if frames is not None:
             config = replace(config, max_rotation_deg=self._rotation_limit(frames))
         both, i1, i2 = np.intersect1d(ids1, ids2, assume_unique=True, return_indices=True)
