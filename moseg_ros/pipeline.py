@@ -75,11 +75,12 @@ class PipelineConfig:
     refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
     ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "
                                    "their foot slides over it")
-    object_fusion: bool = setting(False, "moving_objects: the paper's fused object-level decision on the method's "
-                                  "own regions (epipolar and quadratic flow models per region over the window, ORK "
-                                  "affinities, co-regularized clustering): a region moves when it lies outside the "
-                                  "background's cluster or the depth tests flagged it (methods/object_fusion.py; "
-                                  "measured below the regions alone, see the README's results)")
+    object_fusion: bool = setting(False, "moving_objects without instances: the paper's fused object-level decision "
+                                  "on the method's own regions (epipolar and quadratic flow models per region over "
+                                  "the window, ORK affinities, co-regularized clustering): a region moves when it "
+                                  "lies outside the background's cluster or the depth tests flagged it "
+                                  "(methods/object_fusion.py; measured below the regions alone, see the README's "
+                                  "results)")
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")

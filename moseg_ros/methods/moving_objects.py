@@ -124,6 +124,8 @@ class MovingObjects:
         first = observation.index == 0
         if frame.instances is not None:
             decision = self._decide_instances(frame.instances, labels, frame.full.shape[1], first)
+            if self._fusion is not None:  # its window holds consecutive frames of the method's own regions
+                self._fusion.reset()
         else:
             moving = self._moving_regions(labels)
             decision = Decision(labels, status=Status.WARMUP) if first or refit is None else Decision(labels, moving)
