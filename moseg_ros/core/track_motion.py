@@ -866,7 +866,8 @@ def pair_residuals(tracks: np.ndarray, visible: np.ndarray,
 def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
                   signed: np.ndarray | None = None, ground: np.ndarray | None = None,
                   footing: np.ndarray | None = None, shortfall: np.ndarray | None = None,
-                  dense: np.ndarray | None = None, measurable: np.ndarray | None = None) -> np.ndarray:
+                  dense: np.ndarray | None = None, measurable: np.ndarray | None = None,
+                  depth: np.ndarray | None = None) -> np.ndarray:
     """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (where the
     ``dense`` residual, when given, reaches ``corroboration`` times that distance, or the distance exceeds
     ``evident_factor`` times the threshold), whose median signed parallax is below -cheir_px, whose median
@@ -884,6 +885,8 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
             (NaN: not known there, no corroboration asked).
         measurable: optional (N,) bool, the tracks whose image can show their parallax (``aperture_share``);
             the shortfall test takes only those (default: every track).
+        depth: optional (N,) bool, the depth tests' part (``depth_moving`` of the same arguments) when the caller
+            has it already; then ``signed`` to ``measurable`` are not read.
     """
     per_track = row_medians(residuals)
     measured = ~np.isnan(per_track)
@@ -895,7 +898,9 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
     if dense is not None and config.corroboration > 0:
         doubted = dense < config.corroboration * per_track  # NaN compares False
         moving &= ~doubted | (per_track > config.evident_factor * threshold)
-    return moving | depth_moving(residuals.shape[0], config, signed, ground, footing, shortfall, measurable)
+    if depth is None:
+        depth = depth_moving(residuals.shape[0], config, signed, ground, footing, shortfall, measurable)
+    return moving | depth
 
 
 def depth_moving(n: int, config: TrackMotionConfig = TrackMotionConfig(), signed: np.ndarray | None = None,

@@ -706,10 +706,11 @@ class MotionFrontEnd:
                     named[name][rows, -1] = values[known]
         short = short_of_ground(named["shortfall"])
         measurable = self._measurable(ids, observation, short)
-        flagged = ids[moving_tracks(tables[0], self.config.track_motion, *tables[1:],
-                                    dense=self._dense_near(ids, observation), measurable=measurable)]
+        by_depth = depth_moving(ids.size, self.config.track_motion, *tables[1:], measurable=measurable)
+        flagged = ids[moving_tracks(tables[0], self.config.track_motion, dense=self._dense_near(ids, observation),
+                                    depth=by_depth)]
         flagged = np.union1d(flagged, self._count_flags(flagged, observation.alive, observation.index))
-        depth = ids[depth_moving(ids.size, self.config.track_motion, *tables[1:], measurable=measurable)]
+        depth = ids[by_depth]
         self._depth_ids = np.union1d(np.intersect1d(self._depth_ids, flagged), np.intersect1d(depth, flagged))
         return flagged, self._depth_ids
 
