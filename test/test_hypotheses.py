@@ -116,6 +116,35 @@ def test_object_flow_residuals_from_label_maps():
         assert b.residuals[0, 1] > 1e-3 and b.residuals[1, 0] > 1e-3
 
 
+def test_thinning_keeps_every_sth_member_of_large_groups_only():
+    groups = np.array([0, 1, 0, -1, 0, 0, 1, 0, 2])  # group 0: five members, 1: two, 2: one
+    thinned = hypotheses.thinned_groups(groups, 3, max_members=2)
+    # Group 0 keeps its 1st and 4th members (every ceil(5 / 2) = 3rd); groups 1 and 2 stay whole.
+    assert thinned.tolist() == [0, 1, -1, -1, -1, 0, 1, -1, 2]
+    assert hypotheses.thinned_groups(groups, 3, max_members=5).tolist() == groups.tolist()
+
+
+def test_thinned_flow_vectors_give_the_same_models():
+    rng = np.random.default_rng(5)
+    n_frames, height, width = 3, 60, 80
+    labels = np.zeros((n_frames, height, width), dtype=np.int32)
+    labels[:, 10:40, 10:40] = 7
+    ys, xs = np.mgrid[0:height, 0:width]
+    xy = np.stack([xs.ravel(), ys.ravel()], 1).astype(float)
+    truth = rng.normal(size=(2, 12)) * np.array([1.0, 1e-2, 1e-2, 1e-4, 1e-4, 1e-4] * 2)
+    field = flow_model.predict_flow(truth, xy, (width, height)).reshape(2, height, width, 2)
+    flows = np.where((labels[:-1] == 7)[..., None], field[1], field[0]).astype(np.float32)
+    flows += rng.normal(scale=0.1, size=flows.shape).astype(np.float32)
+    full = hypotheses.object_flow_residuals(labels, flows, np.array([0, 7]), grid_step=1)
+    thin = hypotheses.object_flow_residuals(labels, flows, np.array([0, 7]), grid_step=1, max_vectors=300)
+    for a, b in zip(full, thin):
+        # 3900 background and 900 object vectors against 300 of each: each object's own model fits it as well,
+        # and the other's as badly (a model extrapolated over a region errs unevenly: a sample's mean varies more).
+        np.testing.assert_allclose(np.diag(b.residuals), np.diag(a.residuals), rtol=0.15)
+        np.testing.assert_allclose(b.residuals, a.residuals, rtol=0.25)
+        np.testing.assert_allclose(b.energy, a.energy, rtol=0.1)
+
+
 def test_bad_input_raises():
     with pytest.raises(ValueError, match="unknown model"):
         hypotheses.trajectory_hypotheses(np.zeros((10, 3, 2)), np.ones((10, 3), bool), "conic", gap=1,

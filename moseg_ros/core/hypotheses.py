@@ -280,8 +280,21 @@ def flow_samples(labels: np.ndarray, flows: np.ndarray, step: int) -> tuple[np.n
     return xy, uv, lab
 
 
+def thinned_groups(groups: np.ndarray, n_groups: int, max_members: int) -> np.ndarray:
+    """``groups`` ((N,) int in [0, n_groups), negative = none) with each group of more than ``max_members``
+    members thinned to every s-th of them in their order, s = ceil(count / max_members); the rest set to -1."""
+    counts = np.bincount(groups[groups >= 0], minlength=n_groups)
+    order = np.argsort(groups, kind="stable")
+    ranked = groups[order]
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order)) - np.searchsorted(ranked, ranked)
+    stride = np.maximum(1, -(-counts // max_members))
+    keep = (groups >= 0) & (rank % stride[np.maximum(groups, 0)] == 0)
+    return np.where(keep, groups, -1)
+
+
 def object_flow_residuals(labels: np.ndarray, flows: np.ndarray, object_ids: np.ndarray, *, grid_step: int = 4,
-                          min_vectors: int = 24) -> list[ResidualBlock]:
+                          min_vectors: int = 24, max_vectors: int | None = None) -> list[ResidualBlock]:
     """Object-level flow hypotheses: one quadratic flow model per object per consecutive pair (m, m + 1).
 
     Args:
@@ -290,6 +303,8 @@ def object_flow_residuals(labels: np.ndarray, flows: np.ndarray, object_ids: np.
         object_ids: (K,) the ids that are items, in item order; pixels with other ids are ignored.
         grid_step: flow vectors are read every grid_step pixels.
         min_vectors: fewer vectors than this (per object and pair) give no model of the object in that pair.
+        max_vectors: an object's vectors in a pair thinned to at most this many (``thinned_groups``; None: all):
+            the background holds most of the grid, and its twelve parameters and mean error need far fewer.
 
     Returns:
         One ResidualBlock per pair: items = objects with flow vectors in the pair, residuals = mean squared
@@ -306,10 +321,12 @@ def object_flow_residuals(labels: np.ndarray, flows: np.ndarray, object_ids: np.
     pos = np.searchsorted(object_ids[order], lab).clip(0, n_objects - 1)
     obj = np.where(object_ids[order][pos] == lab, order[pos], -1)  # (P, G) item index or -1
     ok = np.all(np.isfinite(uv), axis=-1) & (obj >= 0)
-    groups = np.where(ok, np.arange(n_pairs)[:, None] * n_objects + obj, -1)
+    groups = np.where(ok, np.arange(n_pairs)[:, None] * n_objects + obj, -1).ravel()
+    if max_vectors is not None:
+        groups = thinned_groups(groups, n_pairs * n_objects, max_vectors)
     height, width = labels.shape[1:]
     stats = flow_model.flow_statistics(np.broadcast_to(xy, uv.shape).reshape(-1, 2),
-                                       np.nan_to_num(uv).reshape(-1, 2), groups.ravel(), n_pairs * n_objects,
+                                       np.nan_to_num(uv).reshape(-1, 2), groups, n_pairs * n_objects,
                                        (width, height))
     stats = stats.reshape(n_pairs, n_objects)
     params, valid = flow_model.fit_quadratic_flow(stats, min_vectors=min_vectors)

@@ -138,6 +138,7 @@ class SegmentConfig:
         flow_step: flow vectors are read on a grid of this step (pixels).
         min_tracks: fewest trajectories of an object in a pair for its own F model (eight-point: 8).
         min_flow_vectors: fewest flow vectors of an object in a pair for its own flow model.
+        max_flow_vectors: an object's flow vectors in a pair thinned to at most this many (None: all of them).
         inlier_ratio: ORK inliers of an object are the models within this factor of its own-model residual.
         epipolar_floor: noise floor of the median Sampson distance (pixels²).
         flow_floor: noise floor of the mean squared flow error (pixels²).
@@ -146,7 +147,9 @@ class SegmentConfig:
             order of its own flow (parallax), a moving one can have a far larger error than its flow.
         lam: co-regularization weight λ.
         n_iter: co-regularization rounds.
-        k_max: largest number of motions considered when estimating it.
+        k_max: largest number of motions considered when estimating it; None: as many as the window has
+            objects (a cap below that makes k-means merge objects with no affinity to each other, and a mover
+            merged into the background's cluster is taken back).
         tie_tolerance: eigengaps this close to the largest are ties, resolved towards more motions: when the
             views disagree about an object (epipolar: consistent with the camera; flow: not) it is reported
             as moving (see segment_objects).
@@ -158,13 +161,14 @@ class SegmentConfig:
     flow_step: int = 4
     min_tracks: int = 8
     min_flow_vectors: int = 24
+    max_flow_vectors: int | None = None
     inlier_ratio: float = 4.0
     epipolar_floor: float = 1.0
     flow_floor: float = 0.25
     flow_energy_fraction: float = 0.15
     lam: float = 0.1
     n_iter: int = 5
-    k_max: int = 8
+    k_max: int | None = None
     tie_tolerance: float = 0.05
     ground_contact: ground.GroundConfig | None = field(default_factory=ground.GroundConfig)
 
@@ -313,7 +317,8 @@ def object_residual_blocks(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.
             min_points=config.min_tracks)
     if "flow" in views:
         blocks["flow"] = hypotheses.object_flow_residuals(labels, flows, object_ids, grid_step=config.flow_step,
-                                                          min_vectors=config.min_flow_vectors)
+                                                          min_vectors=config.min_flow_vectors,
+                                                          max_vectors=config.max_flow_vectors)
     return blocks
 
 
@@ -374,7 +379,7 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
     tracks_xy = np.asarray(tracks_xy, dtype=np.float64)
     tracks_visible = np.asarray(tracks_visible, dtype=bool)
     _check_window(labels, flows, tracks_xy, tracks_visible)
-    object_ids = np.union1d([0], np.unique(labels)).astype(np.int64)
+    object_ids = np.union1d([0], np.unique(labels[labels > 0])).astype(np.int64)  # the mask first: mostly 0
     n_items = len(object_ids)
     if n_motions is not None and not 1 <= n_motions <= n_items:
         raise ValueError(f"n_motions must be in [1, {n_items}] for {n_items} objects, got {n_motions}")
@@ -393,8 +398,9 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
         return result(np.zeros(n_items, dtype=np.int64), np.ones(n_items))
     blocks = object_residual_blocks(labels, flows, tracks_xy, tracks_visible, object_ids, views, config)
     affinities, unseen = _view_affinities(blocks, views, n_items, config)
+    k_max = n_items if config.k_max is None else min(config.k_max, n_items)
     k = n_motions if n_motions is not None else clustering.estimate_n_motions(
-        affinities, k_min=1, k_max=min(config.k_max, n_items), tie_tolerance=config.tie_tolerance)
+        affinities, k_min=1, k_max=k_max, tie_tolerance=config.tie_tolerance)
     if k == 1:
         return result(np.zeros(n_items, dtype=np.int64), np.where(unseen, 0.0, 1.0))
     embedding = clustering.coregularized_embedding(affinities, k, lam=config.lam, n_iter=config.n_iter)
