@@ -88,6 +88,7 @@ class SegmenterNode(Node):
         self.statuses: collections.Counter[str] = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=500)
         self._refit_ages: collections.deque[int | None] = collections.deque(maxlen=500)
+        self._fusion_ages: collections.deque[int | None] = collections.deque(maxlen=500)
         self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
         self._departures: collections.deque[float] = collections.deque(maxlen=100)
         self._queue: collections.deque[tuple[Any, float]] = collections.deque()
@@ -264,6 +265,7 @@ class SegmenterNode(Node):
         kind = result.status.split(":")[0]
         self.statuses[kind] += 1
         self._refit_ages.append(result.refit_age)
+        self._fusion_ages.append(result.fusion_age)
         if kind == "reset":
             self.counters.resets += 1
             self._warn("reset", f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
@@ -310,7 +312,8 @@ class SegmenterNode(Node):
             "latency_ms_p50": f"{np.percentile(latencies, 50):.1f}",
             "latency_ms_p95": f"{np.percentile(latencies, 95):.1f}",
             "queued": len(self._queue),
-            **_refit_age_values(self._refit_ages),
+            **_age_values("refit", self._refit_ages),
+            **_age_values("fusion", self._fusion_ages),
             "calibrated": self.camera_matrix is not None,
             **{f"status_{kind}": count for kind, count in sorted(self.statuses.items())},
         }
@@ -328,14 +331,15 @@ class SegmenterNode(Node):
         self.pipeline.close()
 
 
-def _refit_age_values(ages: collections.deque[int | None]) -> dict[str, str]:
-    """How old the refit decisions of the recent frames were, in frames (with a background refit: 1 when the
-    worker keeps up with the camera, more when frames come faster than it refits)."""
+def _age_values(name: str, ages: collections.deque[int | None]) -> dict[str, str]:
+    """How old the ``name`` decisions (refit: the motion models; fusion: the fused object-level decision) of the
+    recent frames were, in frames (on a worker: 1 when it keeps up with the camera, more when frames come faster
+    than it decides); nothing when no recent frame had one."""
     known = [age for age in ages if age is not None]
     if not known:
         return {}
-    return {"refit_age_last": str(known[-1]), "refit_age_max": str(max(known)),
-            "refit_age_mean": f"{np.mean(known):.2f}"}
+    return {f"{name}_age_last": str(known[-1]), f"{name}_age_max": str(max(known)),
+            f"{name}_age_mean": f"{np.mean(known):.2f}"}
 
 
 def _rate(times: collections.deque[float]) -> float:

@@ -75,12 +75,12 @@ class PipelineConfig:
     refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
     ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "
                                    "their foot slides over it")
-    object_fusion: bool = setting(False, "moving_objects without instances: the paper's fused object-level decision "
+    object_fusion: bool = setting(True, "moving_objects without instances: the paper's fused object-level decision "
                                   "on the method's own regions (epipolar and quadratic flow models per region over "
                                   "the window, ORK affinities, co-regularized clustering): a region moves when it "
-                                  "lies outside the background's cluster or the depth tests flagged it "
-                                  "(methods/object_fusion.py; measured below the regions alone, see the README's "
-                                  "results)")
+                                  "lies outside the background's cluster or the depth tests flagged it; with a "
+                                  "background refit on a worker of its own, whose newest decision a frame applies "
+                                  "(methods/object_fusion.py). Off: every region the method finds moves")
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")
@@ -160,6 +160,9 @@ class FrameResult:
         reason: why, for reset and failed.
         refit_age: frames between this frame and the refit whose track flags it got (0: its own; None: none).
         refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
+        fusion_age: frames between this frame and the fused object-level decision it applies (``object_fusion``;
+            0: its own; None: none).
+        fusion_seconds: how long that decision took, on the first frame that applies it (else None).
         stages: seconds per stage of this frame: prepare (grey, instances resized), the method's own stages (for
             moving_objects: tracks, fit, flow, dense_flow, dense_fit, regions and method_other; "decision" for
             methods that report none), render.
@@ -174,6 +177,8 @@ class FrameResult:
     stages: dict[str, float] = field(default_factory=dict)
     refit_age: int | None = None
     refit_stages: dict[str, float] = field(default_factory=dict)
+    fusion_age: int | None = None
+    fusion_seconds: float | None = None
 
     @property
     def status(self) -> str:
@@ -297,7 +302,8 @@ class Pipeline:
         kind = Status.RESET if reason is not None else decision.status
         return FrameResult(stamp_ns, masks, kind, decision.dynamic_ids, time.perf_counter() - start,
                            reason=reason or "", stages=_stage_seconds(stages.seconds, decision.stages),
-                           refit_age=decision.refit_age, refit_stages=decision.refit_stages)
+                           refit_age=decision.refit_age, refit_stages=decision.refit_stages,
+                           fusion_age=decision.fusion_age, fusion_seconds=decision.fusion_seconds)
 
     def _frame_input(self, image: np.ndarray, instances: np.ndarray | None, camera_matrix: np.ndarray | None,
                      next_frame_at: float | None) -> FrameInput:

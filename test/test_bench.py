@@ -152,6 +152,22 @@ def test_pipeline_bench_repeats_on_the_same_frames(textured_bag, capsys, monkeyp
     assert "--repeat >= 1" in capsys.readouterr().err
 
 
+def test_the_fused_decisions_are_timed_once_each_and_their_ages_kept():
+    from types import SimpleNamespace
+
+    from moseg_ros.bench.pipeline import _fusion_numbers
+
+    def frame(age, seconds):
+        return SimpleNamespace(fusion_age=age, fusion_seconds=seconds)
+
+    numbers = _fusion_numbers([frame(None, None), frame(0, 0.02), frame(1, None), frame(2, 0.04), frame(1, None)])
+    assert numbers["fusions"] == 2
+    assert numbers["fusion_ms_p50"] == pytest.approx(30.0)
+    assert numbers["fusion_age_mean"] == pytest.approx(1.0)
+    assert numbers["fusion_age_max"] == 2
+    assert _fusion_numbers([frame(None, None)]) == {}
+
+
 def test_each_refit_counts_once_with_all_it_did():
     """A refit's track half can reach a frame before its dense half: the refit of frame 2, applied by frame 2
     with its track half (10 ms) and by frame 3 whole (50 ms), is one refit of 50 ms beside those of frames 1

@@ -186,7 +186,8 @@ def test_bad_inputs_are_counted_and_do_not_kill_the_node(segmenter, ros_domain, 
 
 def test_at_a_camera_pace_with_time_to_spare_each_decision_is_the_frames_own(segmenter, ros_domain, monkeypatch):
     """``refit_wait_ms`` -1 (the default): frames at 4 Hz leave time before the next one, and each frame waits for
-    the refit of its own observation (``refit_wait_ms`` 0 would apply the one before: refit_age 1)."""
+    the refit of its own observation (``refit_wait_ms`` 0 would apply the one before: refit_age 1), never for the
+    fused decision."""
     process, log = segmenter
     probe = _Probe(ros_domain, monkeypatch)
     try:
@@ -197,6 +198,8 @@ def test_at_a_camera_pace_with_time_to_spare_each_decision_is_the_frames_own(seg
             probe.publisher.publish(_image(frame, (10 + i) * 1_000_000_000))
         assert probe.spin_until(lambda: probe.diagnostics.get("frames_out") == "10", 20), probe.diagnostics
         assert probe.diagnostics["refit_age_max"] == "0", probe.diagnostics
+        # The fused object-level decision (on by default) runs on its own worker: frames apply one done before.
+        assert int(probe.diagnostics.get("fusion_age_max", -1)) >= 1, probe.diagnostics
         assert process.poll() is None, log.read_text()
     finally:
         probe.close()

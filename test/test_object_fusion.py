@@ -3,6 +3,7 @@ exact instances stand in for the front-end's regions, and in the pipeline (``obj
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from functools import lru_cache
 
@@ -12,6 +13,8 @@ import numpy as np
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.frontend.window import WindowFrame
+from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.methods.moving_objects import FusionDecision, FusionJob, MovingObjects
 from moseg_ros.methods.object_fusion import FUSION_CONFIG, MIN_FRAMES, ObjectFusion
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import render_sequence
@@ -20,6 +23,7 @@ WIDTH, HEIGHT, FRAMES = 621, 188, 8
 # Eigengap ties resolved only when close, as the paper's own setting (core/segment.py): the shipped setting
 # resolves them far towards more motions, and keeps static objects a window of exact instances holds.
 PAPER_TIES = replace(FUSION_CONFIG, tie_tolerance=0.05)
+MOVERS = {"car_ahead", "car_oncoming", "car_crossing", "pedestrian"}
 
 
 @lru_cache(maxsize=None)
@@ -37,6 +41,16 @@ def street_window(scenario: str) -> tuple[tuple[WindowFrame, ...], dict[int, str
         frames.append(WindowFrame(frame.instances.astype(np.int32), back, tracker.ids.copy(), tracker.points.copy()))
         previous = gray
     return tuple(frames), dict(seq.object_names)
+
+
+def halves(labels: np.ndarray) -> np.ndarray:
+    """``labels`` with every object split at its centroid's column into two regions (ids 2i, 2i + 1), as the
+    front-end splits an object it sees in pieces."""
+    count = int(labels.max()) + 1
+    xs = np.broadcast_to(np.arange(labels.shape[1]), labels.shape)
+    area = np.bincount(labels.ravel(), minlength=count)
+    centre = np.bincount(labels.ravel(), xs.ravel(), count) / np.maximum(area, 1)
+    return np.where(labels > 0, 2 * labels + (xs >= centre[labels]), 0).astype(np.int32)
 
 
 def kept(scenario: str, fusion: ObjectFusion, standing: tuple[str, ...] = ()) -> set[str]:
@@ -64,6 +78,22 @@ class TestObjectFusion:
         assert {"car_ahead", "car_oncoming", "car_crossing"} <= kept("default", ObjectFusion(FRAMES))
         assert kept("default", ObjectFusion(FRAMES, PAPER_TIES)) < {"car_ahead", "car_oncoming", "car_crossing"}
 
+    def test_a_window_of_more_objects_than_motions_keeps_every_mover(self):
+        # The busy street in halves: 24 regions. A cap on the number of motions below the number of objects
+        # made k-means merge regions with no affinity to each other, and took the pedestrian back.
+        frames, names = street_window("default")
+        candidates = np.array(sorted(2 * i + side for i in names for side in (0, 1)), dtype=np.int32)
+        movers = {2 * i + side for i, name in names.items() if name in MOVERS for side in (0, 1)}
+        none = np.zeros(0, dtype=np.int32)
+        kept_by = {}
+        for k_max in (None, 8):
+            fusion = ObjectFusion(FRAMES, replace(FUSION_CONFIG, k_max=k_max))
+            for frame in frames:
+                moving = fusion.decide(replace(frame, labels=halves(frame.labels)), candidates, none)
+            kept_by[k_max] = set(moving.tolist())
+        assert movers <= kept_by[None]
+        assert not movers <= kept_by[8]
+
     def test_every_candidate_moves_until_the_window_holds_enough_frames(self):
         frames, names = street_window("parked")
         fusion = ObjectFusion(FRAMES, PAPER_TIES)
@@ -78,6 +108,40 @@ class TestObjectFusion:
         restart = replace(frames[-1], flow=None)
         assert fusion.decide(restart, candidates, none).tolist() == candidates.tolist()
         assert fusion.decide(frames[0], np.zeros(0, dtype=np.int32), none).size == 0
+
+
+def test_inline_every_frame_applies_its_own_decision():
+    seq = render_sequence("ahead", seed=0, n_frames=6, width=WIDTH, height=HEIGHT)
+    with Pipeline(PipelineConfig(object_fusion=True, refit="inline")) as pipeline:
+        results = [pipeline.process(frame.rgb, t * 100_000_000) for t, frame in enumerate(seq.frames)]
+    decided = [r for r in results if r.fusion_age is not None]
+    assert decided and all(r.fusion_age == 0 and r.fusion_seconds is not None for r in decided)
+
+
+def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatch):
+    # Every decision takes 0.3 s on the worker and takes every region of its frame back (no depth flags): frames
+    # go on with the front-end's regions meanwhile, then apply the newest decision done, on the regions' ids.
+    decided: dict[int, np.ndarray] = {}
+
+    def slow(self, job: FusionJob) -> FusionDecision:
+        time.sleep(0.3)
+        decided[job.index] = job.candidates
+        return FusionDecision(job.index, job.windows, job.candidates, 0.3)
+
+    monkeypatch.setattr(MovingObjects, "_fuse", slow)
+    monkeypatch.setattr(MotionFrontEnd, "depth", lambda self: np.zeros(self._grays[-1].shape, dtype=bool))
+    seq = render_sequence("ahead", seed=0, n_frames=16, width=WIDTH, height=HEIGHT)
+    results = []
+    with Pipeline(PipelineConfig(object_fusion=True, refit="background")) as pipeline:
+        for t, frame in enumerate(seq.frames):
+            results.append(pipeline.process(frame.rgb, t * 100_000_000))
+            time.sleep(0.05)
+    assert all(r.seconds < 0.3 for r in results)
+    applied = [t for t, r in enumerate(results) if r.fusion_age is not None]
+    assert applied and all(results[t].fusion_age > 0 for t in applied)
+    for t in applied:
+        assert not set(results[t].dynamic_ids.tolist()) & set(decided[t - results[t].fusion_age].tolist())
+    assert any(r.dynamic_ids.size > 0 for r in results[:applied[0]])
 
 
 def test_the_pipeline_runs_the_fused_decision_on_its_own_regions():

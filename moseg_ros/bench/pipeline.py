@@ -95,7 +95,7 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
         for name, seconds in result.stages.items():
             stages.setdefault(name, []).append(seconds * 1e3)
     floor = floor_ms(frames, pipeline.config)
-    return {**_refit_numbers(results, pipeline.config.refit), "rate_hz": float(rate),
+    return {**_refit_numbers(results, pipeline.config.refit), **_fusion_numbers(results), "rate_hz": float(rate),
             "frames": len(ms), "width": int(frames[0].shape[1]), "height": int(frames[0].shape[0]),
             "ms_mean": float(ms.mean()), **_percentiles(ms, "ms_"), "ms_max": float(ms.max()),
             "frames_per_second": float(1e3 / ms.mean()),
@@ -140,6 +140,19 @@ def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
         numbers.update(_percentiles(refit_ms, "refit_ms_"))
     if ages.size:
         numbers.update(refit_age_mean=float(ages.mean()), refit_age_max=int(ages.max()))
+    return numbers
+
+
+def _fusion_numbers(results: list[Any]) -> dict[str, Any]:
+    """With ``object_fusion``: how long each fused decision took (on the fusion's worker with a background
+    refit) and how old the decisions the frames applied were; nothing without it."""
+    fusion_ms = np.array([r.fusion_seconds * 1e3 for r in results if r.fusion_seconds is not None])
+    ages = np.array([r.fusion_age for r in results if r.fusion_age is not None])
+    numbers: dict[str, Any] = {"fusions": int(fusion_ms.size)} if fusion_ms.size else {}
+    if fusion_ms.size:
+        numbers.update(_percentiles(fusion_ms, "fusion_ms_"))
+    if ages.size:
+        numbers.update(fusion_age_mean=float(ages.mean()), fusion_age_max=int(ages.max()))
     return numbers
 
 

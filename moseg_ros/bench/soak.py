@@ -188,6 +188,7 @@ def _report(sent: dict[int, float], listener: _Listener, samples: list[tuple[flo
         "processed_fraction": int(diagnostics.get("frames_out", 0)) / max(len(sent), 1),
         "node_latency_ms_p95": float(diagnostics.get("latency_ms_p95", "nan")),
         "node_refit_age_mean": float(diagnostics.get("refit_age_mean", "nan")),
+        "node_fusion_age_mean": float(diagnostics.get("fusion_age_mean", "nan")),
         "rss_mb_start": samples[0][1], "rss_mb_end": samples[-1][1],
         "rss_slope_mb_per_min": memory_slope(samples, 60.0 if seconds >= 120 else seconds / 5),
         "rss_mb_by_minute": memory_by_minute(samples),

@@ -52,6 +52,13 @@ class Window:
         """Append the newest frame (the oldest falls out when full)."""
         self._frames.append(frame)
 
+    def copy(self) -> Window:
+        """A window of the same frames (not copied: a frame is not changed once pushed) that later pushes leave
+        as it is: what a worker decides on while the frame path goes on."""
+        window = Window(self._frames.maxlen, self.backward)
+        window._frames.extend(self._frames)
+        return window
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The window as (labels (F, H, W), flows (F-1, H, W, 2), tracks_xy (N, F, 2), visible (N, F)).
 

@@ -65,6 +65,8 @@ class Decision:
     stages: dict[str, float] = field(default_factory=dict)  # seconds per stage of this frame, when measured
     refit_age: int | None = None  # frames between this frame and the refit whose flags it applies (None: no refit)
     refit_stages: dict[str, float] = field(default_factory=dict)  # that refit's stages, on its first frame only
+    fusion_age: int | None = None  # frames between this frame and the fused decision it applies (None: none)
+    fusion_seconds: float | None = None  # how long that decision took, on the first frame that applies it
 
 
 class Method(Protocol):

@@ -1,17 +1,19 @@
 """``moving_objects`` (the default): finds the moving objects itself, with no weights and no instances.
 
 The motion front-end (frontend/motion.py) tracks KLT points at ``track_width`` and flags those that leave the
-camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex hulls,
-united with the dense flow's epipolar residual and cheirality at the working resolution; regions keep their ids
-over time. The cheirality tests use camera_info's K when it comes, a guessed one otherwise. Every region the
-front-end reports is flagged as moving. With upstream instances, they are the objects instead: an instance moves
-when ``instance_min_fraction`` of its pixels lie in the regions the method would publish without them (the
-front-end's regions grown by the published margin, so that an instance never loses what the mask alone would have
-covered), and, once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance,
-followed by its overlap from frame to frame: the evidence of a car passing the image's corner drops out as it
-leaves its tracks and the flow behind, the object does not). With ``instance_unknown_regions`` the method's own
-regions that lie mostly outside every instance are published beside them (``with_unknown_regions``): a segmenter
-that does not know a kind of mover takes nothing away from what the method finds alone.
+camera's dominant epipolar geometry over a causal window; groups of flagged tracks fill their convex hulls, united
+with the dense flow's epipolar residual and cheirality at the working resolution; regions keep their ids over time.
+The cheirality tests use camera_info's K when it comes, a guessed one otherwise. With ``object_fusion`` (the
+default) the paper's fused object-level decision (methods/object_fusion.py) takes back the regions whose models over
+the window fall in the background's motion cluster, unless the depth tests flagged them; without it every region the
+front-end reports moves. With upstream instances, they are the objects instead: an instance moves when
+``instance_min_fraction`` of its pixels lie in the regions the method would publish without them (the front-end's
+regions grown by the published margin, so that an instance never loses what the mask alone would have covered), and,
+once flagged, while ``instance_hold_fraction`` of them still do (a hysteresis per instance, followed by its overlap
+from frame to frame: the evidence of a car passing the image's corner drops out as it leaves its tracks and the flow
+behind, the object does not). With ``instance_unknown_regions`` the method's own regions that lie mostly outside
+every instance are published beside them (``with_unknown_regions``): a segmenter that does not know a kind of mover
+takes nothing away from what the method finds alone.
 
 With ``refit`` "background" the fits and tests (the front-end's ``refit``) run on a worker thread
 (moseg_ros/refit.py): a frame is tracked, its flow computed and its mask drawn from the newest refit that is done,
@@ -24,13 +26,16 @@ long as the camera leaves before its next frame (``FrameInput.next_frame_at``) w
 track half alone when only that fits. The stream's first decisions, from the second frame after a start or a reset
 to the first with a pair for the track test (``gap`` frames apart), always wait for their own refits (the last of
 them for its track half): before them there is nothing, or only one frame pair's dense evidence, to apply. "inline"
-refits every frame on the frame path (deterministic: the offline tools).
+refits every frame on the frame path (deterministic: the offline tools). With "background" the fused decision runs
+on a worker of its own too (resting so that it fits a tenth of the time at most, ``FUSION_DUTY``): a frame pushes
+its regions into the decision's window, hands the window over and applies the newest decision done, by region id
+(``Decision.fusion_age`` says how many frames old); a new window (a new stream) voids the decisions on the last.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import cv2
@@ -41,8 +46,9 @@ from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
                                       scaled_to)
+from moseg_ros.frontend.window import Window
 from moseg_ros.methods.base import Decision, FrameInput, Status
-from moseg_ros.methods.object_fusion import ObjectFusion
+from moseg_ros.methods.object_fusion import FUSION_DUTY, ObjectFusion
 from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
@@ -83,6 +89,9 @@ class MovingObjects:
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
         self._fusion = ObjectFusion(config.window_length) if config.object_fusion else None
+        self._fusion_worker = (BackgroundRefit(self._fuse, name="moseg-fusion", nice=config.refit_nice,
+                                               duty=FUSION_DUTY)
+                               if self._fusion is not None and config.refit == "background" else None)
         # How long the worker's last track half (refit_tracks) and last whole refit took, and the time between the
         # last two frames' submissions (the camera's frame interval as the worker sees it).
         self._track_seconds = self._whole_seconds = self._frame_interval = 0.0
@@ -103,6 +112,10 @@ class MovingObjects:
         self._instance_decisions.reset()
         if self._fusion is not None:
             self._fusion.reset()
+        if self._fusion_worker is not None:
+            self._fusion_worker.clear()
+        self._fusion_windows = 0  # counts the fusion's windows: a decision on an earlier one's ids is void
+        self._fusion_applied: FusionDecision | None = None
 
     def _reset_refit(self) -> None:
         """The front-end's reset and the worker's own count (run while no refit runs)."""
@@ -110,9 +123,10 @@ class MovingObjects:
         self._without_dense = 0  # the worker's refits since its last dense half
 
     def close(self) -> None:
-        """Stop the refit worker, if any."""
-        if self._worker is not None:
-            self._worker.stop()
+        """Stop the refit and fusion workers, if any."""
+        for worker in (self._worker, self._fusion_worker):
+            if worker is not None:
+                worker.stop()
 
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
@@ -127,8 +141,13 @@ class MovingObjects:
             if self._fusion is not None:  # its window holds consecutive frames of the method's own regions
                 self._fusion.reset()
         else:
-            moving = self._moving_regions(labels)
+            moving, fusion = self._moving_regions(labels, observation.index)
             decision = Decision(labels, status=Status.WARMUP) if first or refit is None else Decision(labels, moving)
+            if fusion is not None:
+                decision.fusion_age = observation.index - fusion.index
+                if fusion is not self._fusion_applied:
+                    decision.fusion_seconds = fusion.seconds
+                    self._fusion_applied = fusion
         decision.stages = dict(self._front_end.stages.seconds)
         if waited > 0:
             decision.stages["refit_wait"] = waited
@@ -141,15 +160,39 @@ class MovingObjects:
                 decision.stages.update(refit.stages)
         return decision
 
-    def _moving_regions(self, labels: np.ndarray) -> np.ndarray:
-        """(D,) int32 ids of the front-end's regions that move: every one, or with ``object_fusion`` those the
-        fused object-level decision keeps (methods/object_fusion.py; every frame goes into its window)."""
+    def _moving_regions(self, labels: np.ndarray, index: int) -> tuple[np.ndarray, FusionDecision | None]:
+        """(D,) int32 ids of the front-end's regions that move: every one, or with ``object_fusion`` all but those
+        the fused object-level decision takes back (methods/object_fusion.py: every frame goes into its window),
+        with the decision applied (None before the first on this window). With a background refit the decision
+        runs on a worker of its own and a frame applies the newest one done (on the region ids, which the
+        front-end keeps from frame to frame); inline, on its own frame."""
         regions = np.unique(labels[labels > 0]).astype(np.int32)
         if self._fusion is None:
-            return regions
-        with self._front_end.stages("fusion"):  # timed with the frame's stages
-            standing = np.unique(labels[self._front_end.depth() & (labels > 0)])
-            return self._fusion.decide(self._front_end.window_frame(labels), regions, standing)
+            return regions, None
+        with self._front_end.stages("fusion"):  # timed with the frame's stages (on the worker: only the hand-over)
+            standing = np.unique(labels[self._front_end.depth() & (labels > 0)]).astype(np.int32)
+            window = self._fusion.push(self._front_end.window_frame(labels))
+            if window is None:
+                self._fusion_windows += 1
+                return regions, None
+            job = FusionJob(index, self._fusion_windows, window, regions, standing)
+            if self._fusion_worker is None:
+                fusion = self._fuse(job)
+            else:
+                self._raise_worker_error(self._fusion_worker)
+                self._fusion_worker.submit(job)
+                fusion = self._fusion_worker.latest()
+                if fusion is not None and fusion.windows != self._fusion_windows:
+                    fusion = None
+            if fusion is None:
+                return regions, None
+            return regions[~np.isin(regions, fusion.taken_back) | np.isin(regions, standing)], fusion
+
+    def _fuse(self, job: FusionJob) -> FusionDecision:
+        """The fused decision on ``job``'s window (inline, or the fusion worker's fit)."""
+        start = time.perf_counter()
+        taken_back = self._fusion.taken_back(job.window, job.candidates, job.standing)
+        return FusionDecision(job.index, job.windows, taken_back, time.perf_counter() - start)
 
     def _wait_seconds(self, frame: FrameInput) -> tuple[float, bool]:
         """How long this frame may wait for its own background refit, and whether for the whole of it (else for
@@ -224,7 +267,11 @@ class MovingObjects:
         return refit
 
     def _raise_refit_error(self) -> None:
-        error = self._worker.take_error()
+        self._raise_worker_error(self._worker)
+
+    @staticmethod
+    def _raise_worker_error(worker: BackgroundRefit) -> None:
+        error = worker.take_error()
         if error is not None:
             raise RefitError.of(error)
 
@@ -243,6 +290,29 @@ class MovingObjects:
             return Decision(instances, moving)
         combined, own = with_unknown_regions(instances, labels)
         return Decision(combined, np.concatenate([moving, own]))
+
+
+@dataclass(frozen=True)
+class FusionJob:
+    """What the fused decision of a frame needs: the frame's index, the count of the fusion's windows, a copy of
+    the window (``ObjectFusion.push``), the frame's regions and those the depth tests flagged."""
+
+    index: int
+    windows: int
+    window: Window
+    candidates: np.ndarray
+    standing: np.ndarray
+
+
+@dataclass(frozen=True)
+class FusionDecision:
+    """The fused decision of frame ``index`` on the ``windows``-th window: the region ids it takes back, and how
+    long it took."""
+
+    index: int
+    windows: int
+    taken_back: np.ndarray
+    seconds: float
 
 
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:

@@ -1,18 +1,18 @@
-"""The paper's fused object-level decision on the ``moving_objects`` method's own regions (``object_fusion``).
+"""The paper's fused object-level decision on the ``moving_objects`` method's own regions (``object_fusion``, on).
 
 The front-end's regions (frontend/motion.py) are the objects: each frame's regions, its dense flow back to the
 frame before and its tracks fill a window (frontend/window.py, newest first), and ``core.segment.segment_objects``
 fits an epipolar model on each region's trajectories and a quadratic flow model on each region's flow, builds
-the two ORK affinities, fuses them by co-regularized spectral clustering and finds the background's cluster,
-every frame. A region moves when it lies outside that cluster, or when the depth tests flagged it (footing,
-ground, cheirality: ``MotionFrontEnd.depth()``), which play the ground-contact test's part: a car driving along
-the camera's axis images exactly as a static copy of it, so its own motion models are a static object's and
-only where it stands tells it from a parked car (docs/experiments.md has the derivation). The paper's own
-ground-contact test (core/ground.py) is left out: on real streets it rejected most movers.
+the two ORK affinities, fuses them by co-regularized spectral clustering and finds the background's cluster. A
+region moves when it lies outside that cluster, or when the depth tests flagged it (footing, ground, cheirality:
+``MotionFrontEnd.depth()``), which play the ground-contact test's part: a car driving along the camera's axis
+images exactly as a static copy of it, so its own motion models are a static object's and only where it stands
+tells it from a parked car (docs/experiments.md has the derivation). The paper's own ground-contact test
+(core/ground.py) is left out: on real streets it rejected most movers.
 
-Every region was flagged by the front-end's evidence; this decision can only take some back. On the three
-evaluations it takes back more movers than static regions (the README's results table), so it is off by
-default.
+Every region was flagged by the front-end's evidence, so this decision can only take some back: regions whose
+trajectories and flow the background's models explain. ``push`` runs on the frame path; ``taken_back`` where the
+method fits (inline, or on a worker of its own with a background refit: methods/moving_objects.py).
 """
 
 from __future__ import annotations
@@ -25,15 +25,22 @@ from moseg_ros.frontend.window import Window, WindowFrame
 # The object-level models' noise floors at the front-end's dense size (640 px): SegmentConfig's (1 px² of Sampson
 # distance, 0.25 px² of flow error) are the whole residual of a small far mover there, and the clustering put most
 # of KT3DMoSeg's true regions in the background's cluster; eigengap ties resolved far towards more motions take
-# back fewer movers still (docs/experiments.md has the figures).
+# back fewer movers still (docs/experiments.md has the figures). An object's flow vectors are thinned to a thousand
+# a pair: the background holds most of the grid, its model and mean error come out the same from a thousand, and
+# the decision takes half the time.
 FUSION_CONFIG = SegmentConfig(epipolar_floor=0.1, flow_floor=0.05, inlier_ratio=2.0, tie_tolerance=0.6,
-                              ground_contact=None)
+                              ground_contact=None, max_flow_vectors=1000)
+# The largest share of the time the fusion's worker may fit (with a background refit): the region ids carry a
+# decision for a few frames, and its rests leave the cores to the frame path and the front-end's refit.
+FUSION_DUTY = 0.1
 # The fewest frames in the window before the decision runs: two pairs, as object_level.
 MIN_FRAMES = 3
 
 
 class ObjectFusion:
-    """The fused decision over a sliding window of the front-end's regions (the module's docstring)."""
+    """The fused decision over a sliding window of the front-end's regions (the module's docstring), in two steps:
+    ``push`` on the frame path, ``taken_back`` wherever the fit runs (inline, or on a worker: ``decide`` does
+    both)."""
 
     def __init__(self, window_length: int, config: SegmentConfig = FUSION_CONFIG) -> None:
         self.config = config
@@ -43,19 +50,32 @@ class ObjectFusion:
         """Empty the window (a new stream)."""
         self._window.reset()
 
-    def decide(self, frame: WindowFrame, candidates: np.ndarray, standing: np.ndarray) -> np.ndarray:
-        """Push ``frame`` (``MotionFrontEnd.window_frame``: its regions, flow back to the frame before, tracks)
-        and return the (D,) int32 sorted ids of the ``candidates`` (the regions the front-end reports) that move:
-        outside the background's motion cluster, or among ``standing`` (the regions the depth tests flagged).
-        Until the window holds ``MIN_FRAMES`` frames in a row every candidate moves (the front-end's own
-        decision)."""
+    def push(self, frame: WindowFrame) -> Window | None:
+        """Push ``frame`` (``MotionFrontEnd.window_frame``: its regions, flow back to the frame before, tracks);
+        returns a copy of the window to decide on once it holds ``MIN_FRAMES`` frames in a row, else None. A
+        frame without a flow back starts the window again."""
         if frame.flow is None:  # the window must hold consecutive frames
             self._window.reset()
         self._window.push(frame)
+        return self._window.copy() if len(self._window) >= MIN_FRAMES else None
+
+    def taken_back(self, window: Window, candidates: np.ndarray, standing: np.ndarray) -> np.ndarray:
+        """(T,) int32 sorted ids of the ``candidates`` (regions of ``window``'s newest frame) that the decision
+        takes back: inside the background's motion cluster and not among ``standing`` (the regions the depth
+        tests flagged)."""
         candidates = np.asarray(candidates, dtype=np.int32)
-        if len(self._window) < MIN_FRAMES or candidates.size == 0:
+        if candidates.size == 0:
             return candidates
-        labels, flows, tracks, visible = self._window.arrays()
+        labels, flows, tracks, visible = window.arrays()
         result = segment_objects(labels, flows, tracks, visible, config=self.config, rng=np.random.default_rng(0))
         dynamic = result.object_ids[result.dynamic]
-        return candidates[np.isin(candidates, dynamic) | np.isin(candidates, standing)]
+        return candidates[~np.isin(candidates, dynamic) & ~np.isin(candidates, standing)]
+
+    def decide(self, frame: WindowFrame, candidates: np.ndarray, standing: np.ndarray) -> np.ndarray:
+        """``push`` and ``taken_back`` in one: the (D,) int32 sorted ids of the ``candidates`` that move. Until the
+        window holds ``MIN_FRAMES`` frames in a row every candidate moves (the front-end's own decision)."""
+        candidates = np.asarray(candidates, dtype=np.int32)
+        window = self.push(frame)
+        if window is None:
+            return candidates
+        return candidates[~np.isin(candidates, self.taken_back(window, candidates, standing))]
