@@ -14,6 +14,7 @@ from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.frontend.window import WindowFrame
 from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.methods.base import Status
 from moseg_ros.methods.moving_objects import FusionDecision, FusionJob, MovingObjects
 from moseg_ros.methods.object_fusion import FUSION_CONFIG, MIN_FRAMES, ObjectFusion
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -142,6 +143,28 @@ def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatc
     for t in applied:
         assert not set(results[t].dynamic_ids.tolist()) & set(decided[t - results[t].fusion_age].tolist())
     assert any(r.dynamic_ids.size > 0 for r in results[:applied[0]])
+
+
+def test_a_fused_decision_that_raises_on_its_worker_gives_a_failed_frame_then_recovers(monkeypatch):
+    original = ObjectFusion.taken_back
+    calls = {"n": 0}
+
+    def flaky(self, window, candidates, standing):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise FloatingPointError("degenerate window")
+        return original(self, window, candidates, standing)
+
+    monkeypatch.setattr(ObjectFusion, "taken_back", flaky)
+    seq = render_sequence("ahead", seed=0, n_frames=14, width=WIDTH, height=HEIGHT)
+    with Pipeline(PipelineConfig(object_fusion=True, refit="background")) as pipeline:
+        results = []
+        for t, frame in enumerate(seq.frames):
+            results.append(pipeline.process(frame.rgb, t * 100_000_000))
+            pipeline.method._fusion_worker.wait_idle(5)
+    failed = [r for r in results if r.kind is Status.FAILED]
+    assert len(failed) == 1 and "RefitError: FloatingPointError: degenerate window" in failed[0].status
+    assert results[-1].kind is Status.OK and results[-1].fusion_age is not None
 
 
 def test_the_pipeline_runs_the_fused_decision_on_its_own_regions():

@@ -216,7 +216,7 @@ class MovingObjects:
         track half; and the seconds it waited."""
         if self._worker is None:
             return self._front_end.refit(observation), 0.0
-        self._raise_refit_error()
+        self._raise_worker_error(self._worker)
         seconds, whole = wait
         if observation.index > 0 and not self._warmed_up:
             # Before the first refit of two frames there is only an empty mask to apply, and before the first with
@@ -244,7 +244,7 @@ class MovingObjects:
         else:
             self._worker.wait_for(lambda refit: refit.index >= observation.index, seconds)
         waited = time.perf_counter() - start
-        self._raise_refit_error()
+        self._raise_worker_error(self._worker)
         return self._worker.latest(), waited
 
     def _fit_in_background(self, observation: Observation) -> Refit:
@@ -265,9 +265,6 @@ class MovingObjects:
         refit = self._front_end.refit_dense(observation, tracks)
         self._whole_seconds = time.perf_counter() - start
         return refit
-
-    def _raise_refit_error(self) -> None:
-        self._raise_worker_error(self._worker)
 
     @staticmethod
     def _raise_worker_error(worker: BackgroundRefit) -> None:
