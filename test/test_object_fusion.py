@@ -15,8 +15,7 @@ from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.frontend.window import WindowFrame
 from moseg_ros.frontend.motion import MotionFrontEnd
 from moseg_ros.methods.base import Status
-from moseg_ros.methods.moving_objects import FusionDecision, FusionJob, MovingObjects
-from moseg_ros.methods.object_fusion import FUSION_CONFIG, MIN_FRAMES, ObjectFusion
+from moseg_ros.methods.object_fusion import FUSION_CONFIG, MIN_FRAMES, FusionDecision, FusionJob, ObjectFusion
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import render_sequence
 
@@ -129,7 +128,7 @@ def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatc
         decided[job.index] = job.candidates
         return FusionDecision(job.index, job.windows, job.candidates, 0.3)
 
-    monkeypatch.setattr(MovingObjects, "_fuse", slow)
+    monkeypatch.setattr(ObjectFusion, "fuse", slow)
     monkeypatch.setattr(MotionFrontEnd, "depth", lambda self: np.zeros(self._grays[-1].shape, dtype=bool))
     seq = render_sequence("ahead", seed=0, n_frames=16, width=WIDTH, height=HEIGHT)
     results = []

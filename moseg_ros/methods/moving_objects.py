@@ -35,7 +35,7 @@ its regions into the decision's window, hands the window over and applies the ne
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import cv2
@@ -46,9 +46,8 @@ from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, compact_ids
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, Refit, resized_to_width,
                                       scaled_to)
-from moseg_ros.frontend.window import Window
 from moseg_ros.methods.base import Decision, FrameInput, Status
-from moseg_ros.methods.object_fusion import FUSION_DUTY, ObjectFusion
+from moseg_ros.methods.object_fusion import FUSION_DUTY, FusionDecision, FusionJob, ObjectFusion
 from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
@@ -89,7 +88,7 @@ class MovingObjects:
         self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
         self._fusion = ObjectFusion(config.window_length) if config.object_fusion else None
-        self._fusion_worker = (BackgroundRefit(self._fuse, name="moseg-fusion", nice=config.refit_nice,
+        self._fusion_worker = (BackgroundRefit(self._fusion.fuse, name="moseg-fusion", nice=config.refit_nice,
                                                duty=FUSION_DUTY)
                                if self._fusion is not None and config.refit == "background" else None)
         # How long the worker's last track half (refit_tracks) and last whole refit took, and the time between the
@@ -177,7 +176,7 @@ class MovingObjects:
                 return regions, None
             job = FusionJob(index, self._fusion_windows, window, regions, standing)
             if self._fusion_worker is None:
-                fusion = self._fuse(job)
+                fusion = self._fusion.fuse(job)
             else:
                 self._raise_worker_error(self._fusion_worker)
                 self._fusion_worker.submit(job)
@@ -187,12 +186,6 @@ class MovingObjects:
             if fusion is None:
                 return regions, None
             return regions[~np.isin(regions, fusion.taken_back) | np.isin(regions, standing)], fusion
-
-    def _fuse(self, job: FusionJob) -> FusionDecision:
-        """The fused decision on ``job``'s window (inline, or the fusion worker's fit)."""
-        start = time.perf_counter()
-        taken_back = self._fusion.taken_back(job.window, job.candidates, job.standing)
-        return FusionDecision(job.index, job.windows, taken_back, time.perf_counter() - start)
 
     def _wait_seconds(self, frame: FrameInput) -> tuple[float, bool]:
         """How long this frame may wait for its own background refit, and whether for the whole of it (else for
@@ -287,29 +280,6 @@ class MovingObjects:
             return Decision(instances, moving)
         combined, own = with_unknown_regions(instances, labels)
         return Decision(combined, np.concatenate([moving, own]))
-
-
-@dataclass(frozen=True)
-class FusionJob:
-    """What the fused decision of a frame needs: the frame's index, the count of the fusion's windows, a copy of
-    the window (``ObjectFusion.push``), the frame's regions and those the depth tests flagged."""
-
-    index: int
-    windows: int
-    window: Window
-    candidates: np.ndarray
-    standing: np.ndarray
-
-
-@dataclass(frozen=True)
-class FusionDecision:
-    """The fused decision of frame ``index`` on the ``windows``-th window: the region ids it takes back, and how
-    long it took."""
-
-    index: int
-    windows: int
-    taken_back: np.ndarray
-    seconds: float
 
 
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:

@@ -17,6 +17,9 @@ method fits (inline, or on a worker of its own with a background refit: methods/
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
 import numpy as np
 
 from moseg_ros.core.segment import SegmentConfig, segment_objects
@@ -35,6 +38,29 @@ FUSION_CONFIG = SegmentConfig(epipolar_floor=0.1, flow_floor=0.05, inlier_ratio=
 FUSION_DUTY = 0.1
 # The fewest frames in the window before the decision runs: two pairs, as object_level.
 MIN_FRAMES = 3
+
+
+@dataclass(frozen=True)
+class FusionJob:
+    """What the fused decision of a frame needs: the frame's index, the count of the fusion's windows, a copy of
+    the window (``ObjectFusion.push``), the frame's regions and those the depth tests flagged."""
+
+    index: int
+    windows: int
+    window: Window
+    candidates: np.ndarray
+    standing: np.ndarray
+
+
+@dataclass(frozen=True)
+class FusionDecision:
+    """The fused decision of frame ``index`` on the ``windows``-th window: the region ids it takes back, and how
+    long it took."""
+
+    index: int
+    windows: int
+    taken_back: np.ndarray
+    seconds: float
 
 
 class ObjectFusion:
@@ -70,6 +96,12 @@ class ObjectFusion:
         result = segment_objects(labels, flows, tracks, visible, config=self.config, rng=np.random.default_rng(0))
         dynamic = result.object_ids[result.dynamic]
         return candidates[~np.isin(candidates, dynamic) & ~np.isin(candidates, standing)]
+
+    def fuse(self, job: FusionJob) -> FusionDecision:
+        """``taken_back`` on ``job``, timed (inline, or the fusion worker's fit)."""
+        start = time.perf_counter()
+        taken_back = self.taken_back(job.window, job.candidates, job.standing)
+        return FusionDecision(job.index, job.windows, taken_back, time.perf_counter() - start)
 
     def decide(self, frame: WindowFrame, candidates: np.ndarray, standing: np.ndarray) -> np.ndarray:
         """``push`` and ``taken_back`` in one: the (D,) int32 sorted ids of the ``candidates`` that move. Until the
