@@ -33,7 +33,8 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.io.frames import camera_matrix, decode_frame, decode_instances
 from moseg_ros.io.image import declared_size, image_from_array
-from moseg_ros.params import Setting, all_settings, settings_of
+from moseg_ros.config import all_settings
+from moseg_ros.params import Setting, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import Masks, debug_overlay
 from moseg_ros.timing import next_arrival

@@ -1,14 +1,14 @@
 """One schema of every setting: default, range or choices, and description, declared once.
 
-Settings are dataclass fields declared with ``setting(...)``: the pipeline's in ``pipeline.PipelineConfig``,
-the node's own (QoS, queue, diagnostics) in ``NodeSettings`` below. Everything else derives from them: the
-node's parameter descriptors and validation, the check of ``config/segmenter.yaml``, the README's parameter
-table (checked by a test), and every tool's ``--params FILE`` / ``--set NAME=VALUE``.
+Settings are dataclass fields declared with ``setting(...)``: the pipeline's in ``config.PipelineConfig``,
+the node's own (QoS, queue, diagnostics) in ``NodeSettings`` below. Everything else derives from them (see
+moseg_ros/config.py): the node's parameter descriptors and validation, the check of ``config/segmenter.yaml``,
+the README's parameter table (checked by a test), and every tool's ``--params FILE`` / ``--set NAME=VALUE``.
+This module imports nothing of the package.
 """
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
@@ -107,13 +107,6 @@ class NodeSettings:
                                      high=600.0)
 
 
-def all_settings() -> list[Setting]:
-    """Every setting of the node: its own, then the pipeline's."""
-    from moseg_ros.pipeline import PipelineConfig
-
-    return settings_of(NodeSettings) + settings_of(PipelineConfig)
-
-
 def read_parameter_file(path: Path) -> dict[str, Any]:
     """The ``ros__parameters`` of a node's YAML file (``segmenter:`` or ``/**:`` as the top key)."""
     data = yaml.safe_load(Path(path).read_text()) or {}
@@ -133,64 +126,3 @@ def apply_overrides(values: dict[str, Any], overrides: Iterable[str], schema: li
             raise ValueError(f"--set {item!r}: expected NAME=VALUE with NAME one of {sorted(by_name)}")
         out[name] = by_name[name].parse(text)
     return out
-
-
-def add_settings_arguments(parser: argparse.ArgumentParser, method: bool = True) -> None:
-    """``--params FILE`` (the node's YAML), ``--set NAME=VALUE`` (repeatable) and, unless the tool fixes it,
-    ``--method NAME`` (short for --set method=NAME); read by ``pipeline_config``."""
-    from moseg_ros.methods import METHODS
-
-    if method:
-        parser.add_argument("--method", choices=sorted(METHODS), default=None,
-                            help="motion decision method (default: the file's, else the node's default)")
-    parser.add_argument("--params", type=Path, metavar="FILE",
-                        help="the node's parameter file (config/segmenter.yaml layout); node-only keys are ignored")
-    parser.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
-                        help="override one pipeline setting, e.g. --set method=epipolar_baseline (repeatable)")
-
-
-def add_live_argument(parser: argparse.ArgumentParser) -> None:
-    """``--live HZ``: run the pipeline as the node does (refit ``auto`` on its background worker) with the frames
-    paced at a camera's rate, so that what is scored is what the node would publish at that rate."""
-    parser.add_argument("--live", type=_rate, default=0.0, metavar="HZ",
-                        help="score what the node would publish at a camera of HZ frames a second: the refit on "
-                             "its background worker, frames paced (default 0: offline, each frame waits for its "
-                             "own refit)")
-
-
-def _rate(text: str) -> float:
-    """argparse type: frames a second, >= 0."""
-    value = float(text)
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0 frames a second, got {text}")
-    return value
-
-
-def pipeline_config(args: argparse.Namespace) -> Any:
-    """The PipelineConfig of a tool's ``--params``, then ``--method``, then ``--set``.
-
-    Raises:
-        SettingsError: an unknown name, a value of the wrong type or out of range, an unreadable file.
-    """
-    try:
-        return _pipeline_config(args)
-    except (ValueError, OSError, yaml.YAMLError) as error:
-        raise SettingsError(str(error)) from None
-
-
-def _pipeline_config(args: argparse.Namespace) -> Any:
-    from moseg_ros.pipeline import PipelineConfig
-
-    schema = settings_of(PipelineConfig)
-    names = {entry.name for entry in schema}
-    values = read_parameter_file(args.params) if getattr(args, "params", None) else {}
-    unknown = set(values) - names - {entry.name for entry in settings_of(NodeSettings)}
-    if unknown:
-        raise ValueError(f"{args.params}: unknown parameters {sorted(unknown)}")
-    values = {name: value for name, value in values.items() if name in names}
-    if getattr(args, "method", None):
-        values["method"] = args.method
-    values = apply_overrides(values, getattr(args, "set", []), schema)
-    config = PipelineConfig(**values)
-    config.validate()
-    return config

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from moseg_ros.core.track_motion import guessed_camera_matrix
+from moseg_ros.core.track_tests.cheirality import guessed_camera_matrix
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 _domains = itertools.count()

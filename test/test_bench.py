@@ -136,6 +136,18 @@ class TestRepeated:
         assert result["stages"] == {"flow": {"p50": 6.0}}
         assert result["ranges"] == {"ms_p95": [30.0, 50.0], "ratio": [1.2, 2.0]}
         assert result["frames"] == 11 and result["refit"] == "background"  # shared by every run: as it is
+        assert "partial" not in result
+
+    def test_a_number_only_some_runs_have_is_the_median_of_those(self):
+        from moseg_ros.bench.pipeline import repeated
+
+        runs = [dict(self.RUNS[0], fusion_ms_p50=8.0), self.RUNS[1],
+                dict(self.RUNS[2], fusion_ms_p50=4.0, stages={"flow": {"p50": 6.0}, "fusion": {"p50": 1.0}})]
+        result = repeated(runs)
+        assert result["fusion_ms_p50"] == 6.0 and result["ranges"]["fusion_ms_p50"] == [4.0, 8.0]
+        assert result["partial"] == {"fusion_ms_p50": 2}
+        assert result["stages"] == {"flow": {"p50": 6.0}, "fusion": {"p50": 1.0}}
+        assert repeated(runs[1:2] + runs[:1])["fusion_ms_p50"] == 8.0  # the first run need not have it
 
 
 def test_pipeline_bench_repeats_on_the_same_frames(textured_bag, capsys, monkeypatch):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from moseg_ros.params import all_settings
+from moseg_ros.config import all_settings
 
 node = pytest.importorskip("moseg_ros.node", reason="rclpy (ROS 2 Jazzy from PyPI) is not installed")
 

@@ -7,7 +7,8 @@ import pytest
 
 from conftest import textured_frames
 from moseg_ros.frontend.flow import DIS_PRESETS
-from moseg_ros.methods import DEFAULT_METHOD, METHODS, Decision, FrameInput, Status
+from moseg_ros.methods import DEFAULT_METHOD, METHODS, method_class
+from moseg_ros.methods.base import Decision, FrameInput, Status
 from moseg_ros.methods.moving_objects import (OWN_REGION_BASE, InstanceDecisions, held_instances,
                                               published_regions, with_unknown_regions)
 from moseg_ros.pipeline import Pipeline, PipelineConfig
@@ -15,14 +16,15 @@ from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 def test_registry_names_match_and_the_default_needs_no_instances():
     assert DEFAULT_METHOD == "moving_objects" == PipelineConfig().method
-    for name, cls in METHODS.items():
+    for name in METHODS:
+        cls = method_class(name)
         assert cls.name == name and cls.flow_preset in DIS_PRESETS
         assert cls.__doc__ and cls.step.__doc__ and cls.reset.__doc__
 
 
 @pytest.mark.parametrize("name", sorted(METHODS))
 def test_every_method_steps_through_a_stream_and_resets(name):
-    method = METHODS[name](PipelineConfig(method=name))
+    method = method_class(name)(PipelineConfig(method=name))
     frames = [f[..., 0].copy() for f in textured_frames(3)]
     decisions = [method.step(FrameInput(f, f.shape)) for f in frames]
     assert all(isinstance(d, Decision) for d in decisions)
@@ -43,7 +45,7 @@ class TestFrameInput:
         assert gray.shape == (3, 4) and np.array_equal(gray, np.arange(12).reshape(3, 4) * 10)
 
     def test_the_default_method_never_resizes_to_the_working_size(self):
-        method = METHODS[DEFAULT_METHOD](PipelineConfig())
+        method = method_class(DEFAULT_METHOD)(PipelineConfig())
         frames = [FrameInput(f[..., 0].copy(), (94, 310)) for f in textured_frames(3)]
         for frame in frames:
             method.step(frame)

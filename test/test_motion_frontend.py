@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from conftest import oncoming_street_flow, pan_follow_flow, textured_frames
-from moseg_ros.core.track_motion import TrackMotionConfig, guessed_camera_matrix
+from moseg_ros.core.track_tests.cheirality import guessed_camera_matrix
+from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.core.flow_field import away_from_border
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, dense_near,

@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from moseg_ros.params import (NodeSettings, Setting, add_settings_arguments, all_settings, pipeline_config,
-                              read_parameter_file, settings_of)
+from moseg_ros.config import add_settings_arguments, all_settings, pipeline_config
+from moseg_ros.params import NodeSettings, Setting, read_parameter_file, settings_of
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ import pytest
 from moseg_ros.cli import main as moseg
 from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, stamp_to_ns
 from moseg_ros.io.image import image_to_array
-from moseg_ros.tools.process import process_bag
+from moseg_ros.tools.bag_masks import process_bag
 
 
 def _masks(bag):

@@ -13,14 +13,17 @@ import pytest
 from conftest import oncoming_street_flow, pan_follow_flow
 from moseg_ros.core.baseline import sampson_pixels
 from moseg_ros.core.flow_field import pixel_grid
-from moseg_ros.core.track_motion import (REFERENCE_WIDTH, Parallax, TrackMotionConfig, _band_below, aperture_share,
-                                         behind_infinity,
-                                         beyond_allowance, decided_ratios, dense_parallax, depth_moving, far_behind,
-                                         footing_allowance, footing_columns, footing_excess, ground_floor,
-                                         ground_parallax_ratio,
-                                         ground_slope, guessed_camera_matrix, may_be_planar, moving_tracks,
-                                         nearer_than_road, pair_evidence, pair_residual, pair_residuals, row_medians,
-                                         signed_parallax, standing_rows, standing_shortfall)
+from moseg_ros.core.robust import row_medians
+from moseg_ros.core.track_motion import depth_moving, moving_tracks, pair_evidence
+from moseg_ros.core.track_tests.epipolar import pair_residual, pair_residuals
+from moseg_ros.core.track_tests.cheirality import (Parallax, behind_infinity, dense_parallax, far_behind,
+                                                   guessed_camera_matrix, signed_parallax)
+from moseg_ros.core.track_tests.columns import _band_below, footing_columns
+from moseg_ros.core.track_tests.epipolar import beyond_allowance, may_be_planar
+from moseg_ros.core.track_tests.footing import footing_allowance, footing_excess, nearer_than_road
+from moseg_ros.core.track_tests.ground import (aperture_share, decided_ratios, ground_floor, ground_parallax_ratio,
+                                               ground_slope, standing_rows, standing_shortfall)
+from moseg_ros.core.track_tests.settings import REFERENCE_WIDTH, TrackMotionConfig
 from moseg_ros.frontend.motion import MotionFrontEndConfig
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])

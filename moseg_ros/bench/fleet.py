@@ -19,9 +19,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.config import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import PipelineConfig
-from moseg_ros.tools.fleet import LOCAL, is_bag, process_fleet, start_ray, warm_up_ray
+from moseg_ros.io.bags import is_bag
+from moseg_ros.tools.fleet import LOCAL, process_fleet, start_ray, warm_up_ray
 
 
 def _copies(bag: Path, folder: Path, n: int) -> Path:

@@ -27,7 +27,7 @@ from threadpoolctl import threadpool_limits
 from moseg_ros.io.bags import read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.io.image import to_gray
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.config import add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig, opencv_threads
 from moseg_ros.timing import Pacer
 
@@ -106,21 +106,28 @@ def bench_pipeline(frames: list[np.ndarray], config: PipelineConfig = PipelineCo
 
 def repeated(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """One result from several ``bench_pipeline`` runs on the same frames: each number that varied is the
-    median over the runs (each stage's p50 and p95 too; ``ratio`` the median of the runs' ratios), with its
-    smallest and largest value in ``ranges``; what all runs share (frames, size) stays as it is; ``repeats``
-    counts the runs. A machine whose speed drifts between runs (a shared host: the same run varies by a third
-    here) shows it in the ranges instead of in one run's luck."""
+    median over the runs that have it (each stage's p50 and p95 too; ``ratio`` the median of the runs' ratios),
+    with its smallest and largest value in ``ranges``; what all runs share (frames, size) stays as it is;
+    ``repeats`` counts the runs. A number that only some runs have (one whose fused decision was not done within
+    its frames has no ``fusion_*``) is the median of those, and ``partial`` says how many had it. A machine whose
+    speed drifts between runs (a shared host: the same run varies by a third here) shows it in the ranges
+    instead of in one run's luck."""
     if len(runs) == 1:
         return runs[0]
-    numbers = [key for key, value in runs[0].items()
-               if isinstance(value, (int, float)) and len({run.get(key) for run in runs}) > 1]
-    result: dict[str, Any] = {**runs[0], "repeats": len(runs)}
-    result.update({key: float(np.median([run[key] for run in runs])) for key in numbers})
-    result["stages"] = {name: {p: float(np.median([run["stages"][name][p] for run in runs])) for p in percentiles}
-                        for name, percentiles in runs[0]["stages"].items()
-                        if all(name in run["stages"] for run in runs)}
-    result["ranges"] = {key: [float(min(run[key] for run in runs)), float(max(run[key] for run in runs))]
-                        for key in numbers}
+    keys = list(dict.fromkeys(key for run in runs for key in run))
+    values = {key: [run[key] for run in runs if key in run] for key in keys}
+    numbers = [key for key in keys if all(isinstance(value, (int, float)) for value in values[key])
+               and (len(set(values[key])) > 1 or len(values[key]) < len(runs))]
+    result: dict[str, Any] = {**{key: values[key][0] for key in keys}, "repeats": len(runs)}
+    result.update({key: float(np.median(values[key])) for key in numbers})
+    stages = [run.get("stages", {}) for run in runs]
+    result["stages"] = {name: {p: float(np.median([stage[name][p] for stage in stages if name in stage]))
+                               for p in percentiles}
+                        for name, percentiles in {name: s[name] for s in reversed(stages) for name in s}.items()}
+    result["ranges"] = {key: [float(min(values[key])), float(max(values[key]))] for key in numbers}
+    partial = {key: len(values[key]) for key in keys if len(values[key]) < len(runs)}
+    if partial:
+        result["partial"] = partial
     return result
 
 

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from moseg_ros.io.bags import list_topics
-from moseg_ros.params import all_settings
+from moseg_ros.config import all_settings
 from moseg_ros.timing import sleep_until
 from moseg_ros.tools.demo import start_segmenter, stop_segmenter
 from moseg_ros.tools.dds import use_loopback

@@ -76,3 +76,19 @@ def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px:
     except cv2.error:
         return None, None
     return _checked(model, inliers)
+
+
+def row_medians(values: np.ndarray) -> np.ndarray:
+    """(N,) the median of each row of (N, P) ``values``, NaN ignored (NaN for a row without a number).
+
+    The same numbers as ``np.nanmedian(values, axis=1)`` (the mean of the two middle values of an even count),
+    from one sort: for short rows NumPy's nanmedian goes through masked arrays, several times slower, and the
+    refit takes about four of these a frame while holding the GIL the frame path needs.
+    """
+    if values.shape[1] == 0:
+        return np.full(values.shape[0], np.nan)
+    ordered = np.sort(values, axis=1)  # NaN sorts last
+    count = values.shape[1] - np.isnan(values).sum(axis=1)
+    rows = np.arange(values.shape[0])
+    middle = 0.5 * (ordered[rows, np.maximum((count - 1) // 2, 0)] + ordered[rows, np.maximum(count // 2, 0)])
+    return np.where(count > 0, middle, np.nan)

@@ -36,7 +36,7 @@ from moseg_ros.eval.masks import mask_iou
 from moseg_ros.eval.report import ClipSkipped, print_skipped, write_json
 from moseg_ros.io.files import frame_number, image_files, read_frame
 from moseg_ros.io.image import ImageDecodeError
-from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
+from moseg_ros.config import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer
 

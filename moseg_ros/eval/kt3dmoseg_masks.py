@@ -33,7 +33,7 @@ from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.eval.kt3dmoseg import Clip, default_dir, find_clips, load_clip, no_clips_message
 from moseg_ros.eval.report import ClipSkipped, print_skipped, write_json
 from moseg_ros.io.files import frame_number, image_files, read_frame
-from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
+from moseg_ros.config import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer
 

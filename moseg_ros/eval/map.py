@@ -34,7 +34,7 @@ import numpy as np
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
 from moseg_ros.io.bags import image_camera, iter_messages, list_topics, read_images, stamp_to_ns
 from moseg_ros.io.image import image_to_array
-from moseg_ros.params import add_settings_arguments, pipeline_config
+from moseg_ros.config import add_settings_arguments, pipeline_config
 from moseg_ros.synth.street import GT_TOPICS
 
 MODES = ("none", "ours", "gt")
@@ -327,7 +327,7 @@ def moving_instances(bag: Path, moving: dict[int, np.ndarray]) -> dict[int, np.n
 
 def _our_masks(bag: Path, masks_bag: Path | None, config: Any, work: Path) -> dict[int, np.ndarray]:
     if masks_bag is None:
-        from moseg_ros.tools.process import process_bag
+        from moseg_ros.tools.bag_masks import process_bag
 
         masks_bag = work / "our_masks"
         process_bag(bag, masks_bag, config=config)

@@ -74,10 +74,12 @@ from moseg_ros.core.baseline import (BaselineConfig, EpipolarResidual, epipolar_
 from moseg_ros.core.flow_field import MIN_WORKING_SIDE, away_from_border, shrink_scale
 from moseg_ros.core.object_flow import ObjectFlowConfig, refine_by_flow
 from moseg_ros.core.robust import fundamental_polished, homography_ransac
-from moseg_ros.core.track_motion import (DenseParallax, PairEvidence, TrackMotionConfig, aperture_share,
-                                         behind_infinity, beyond_allowance, dense_parallax, depth_moving,
-                                         guessed_camera_matrix, moving_tracks, nearer_than_road, pair_evidence,
-                                         short_of_ground)
+from moseg_ros.core.track_motion import PairEvidence, depth_moving, moving_tracks, pair_evidence
+from moseg_ros.core.track_tests.cheirality import DenseParallax, behind_infinity, dense_parallax, guessed_camera_matrix
+from moseg_ros.core.track_tests.epipolar import beyond_allowance
+from moseg_ros.core.track_tests.footing import nearer_than_road
+from moseg_ros.core.track_tests.ground import aperture_share, short_of_ground
+from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, remembered

@@ -553,3 +553,10 @@ def read_images(path: str | Path, topic: str | None = None) -> Iterator[BagImage
     topic = pick_image_topic(list_topics(path), topic)
     for name, log_time, msg in iter_messages(path, [topic]):
         yield BagImage(name, int(log_time), stamp_to_ns(msg.header.stamp), str(msg.header.frame_id), msg)
+
+
+def is_bag(path: Path) -> bool:
+    """A rosbag2 folder (with metadata.yaml), a .mcap file or a ROS 1 .bag."""
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file()
+    return path.is_file() and path.suffix in (".mcap", ".bag")

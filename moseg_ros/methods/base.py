@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 
 if TYPE_CHECKING:
-    from moseg_ros.pipeline import PipelineConfig
+    from moseg_ros.config import PipelineConfig
 
 
 class Status(str, enum.Enum):

@@ -17,7 +17,7 @@ from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.methods.base import Decision, FrameInput, Status
 
 if TYPE_CHECKING:
-    from moseg_ros.pipeline import PipelineConfig
+    from moseg_ros.config import PipelineConfig
 
 
 class EpipolarBaseline:

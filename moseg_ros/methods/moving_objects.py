@@ -51,7 +51,7 @@ from moseg_ros.methods.object_fusion import FUSION_DUTY, FusionDecision, FusionJ
 from moseg_ros.refit import BackgroundRefit, RefitError
 
 if TYPE_CHECKING:
-    from moseg_ros.pipeline import PipelineConfig
+    from moseg_ros.config import PipelineConfig
 
 
 # The longest each of the stream's first decisions waits for its refit (a refit takes tens of milliseconds; a worker

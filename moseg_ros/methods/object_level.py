@@ -21,7 +21,7 @@ from moseg_ros.methods.base import Decision, FrameInput, Status
 from moseg_ros.methods.epipolar_baseline import EpipolarBaseline
 
 if TYPE_CHECKING:
-    from moseg_ros.pipeline import PipelineConfig
+    from moseg_ros.config import PipelineConfig
 
 
 class ObjectLevel:

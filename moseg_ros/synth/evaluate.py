@@ -27,7 +27,7 @@ import numpy as np
 
 from moseg_ros.eval.identities import InstanceFollow
 from moseg_ros.eval.report import write_json
-from moseg_ros.params import add_live_argument, add_settings_arguments, pipeline_config
+from moseg_ros.config import add_live_argument, add_settings_arguments, pipeline_config
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import PRESETS, check_scene, render_sequence
 from moseg_ros.synth.street import FRAME_RATE_HZ, KITTI_HEIGHT, KITTI_WIDTH

@@ -23,9 +23,8 @@ import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
 from moseg_ros.io.bags import list_topics, read_images
-from moseg_ros.methods import DEFAULT_METHOD
-from moseg_ros.params import all_settings
-from moseg_ros.pipeline import METHODS
+from moseg_ros.methods import DEFAULT_METHOD, METHODS
+from moseg_ros.config import all_settings
 from moseg_ros.synth.scenarios import build_scene, check_scene
 from moseg_ros.synth.street import GT_TOPICS, KITTI_HEIGHT, KITTI_WIDTH, render_frames, write_frames
 from moseg_ros.tools.dds import loopback_env

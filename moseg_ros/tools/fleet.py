@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from moseg_ros.io.bags import is_bag
 from moseg_ros.pipeline import PipelineConfig
 
 SUMMARY_FILE = "summary.json"
@@ -40,13 +41,6 @@ class BagJob:
     name: str
     bag: Path
     output: Path
-
-
-def is_bag(path: Path) -> bool:
-    """A rosbag2 folder (with metadata.yaml), a .mcap file or a ROS 1 .bag."""
-    if path.is_dir():
-        return (path / "metadata.yaml").is_file()
-    return path.is_file() and path.suffix in (".mcap", ".bag")
 
 
 def find_bags(inputs: Sequence[Path]) -> list[Path]:
@@ -89,7 +83,7 @@ def process_job(job: BagJob, config: PipelineConfig, image_topic: str | None = N
     """
     from threadpoolctl import threadpool_limits
 
-    from moseg_ros.tools.process import process_bag
+    from moseg_ros.tools.bag_masks import process_bag
 
     row = _row(job, "failed")
     partial = job.output.parent / PARTIAL / job.output.name  # so the MCAP file inside is named <name>.mcap
@@ -181,7 +175,7 @@ def start_ray(address: str = LOCAL, workers: int | None = None) -> bool:
 
 def _warm_worker() -> int:
     """Import what a bag's task needs, and hold the worker a moment so that each warm-up gets its own."""
-    import moseg_ros.tools.process  # noqa: F401 -- the import is the warm-up
+    import moseg_ros.tools.bag_masks  # noqa: F401 -- the import is the warm-up
 
     time.sleep(0.5)
     return os.getpid()
