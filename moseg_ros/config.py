@@ -69,7 +69,7 @@ class PipelineConfig:
                                   "the window, ORK affinities, co-regularized clustering): a region moves when it "
                                   "lies outside the background's cluster or the depth tests flagged it; with a "
                                   "background refit on a worker of its own, whose newest decision a frame applies "
-                                  "(methods/object_fusion.py). Off: every region the method finds moves")
+                                  "(frontend/fusion.py). Off: every region the method finds moves")
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")

@@ -7,7 +7,8 @@ import numpy as np
 
 from conftest import textured_frames
 from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, remembered
-from moseg_ros.frontend.motion import MotionFrontEnd, MotionFrontEndConfig
+from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.frontend.motion_config import MotionFrontEndConfig
 
 
 class TestCarried:
@@ -94,9 +95,9 @@ class TestRemembered:
 
     def test_the_front_end_forgets_it_on_reset(self):
         front_end = MotionFrontEnd(MotionFrontEndConfig(memory_frames=1))
-        front_end._memory = (0, np.zeros(self.SHAPE, dtype=np.uint8))
+        front_end.regions._memory = (0, np.zeros(self.SHAPE, dtype=np.uint8))
         front_end.reset()
-        assert front_end._memory is None
+        assert front_end.regions._memory is None
 
 
 class TestCoasted:

@@ -13,8 +13,10 @@ from moseg_ros.core.track_tests.cheirality import guessed_camera_matrix
 from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.core.flow_field import away_from_border
 from moseg_ros.frontend.flow import DenseFlow
-from moseg_ros.frontend.motion import (MotionFrontEnd, MotionFrontEndConfig, Observation, dense_near,
-                                      resized_to_width)
+from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.frontend.motion_config import MotionFrontEndConfig
+from moseg_ros.frontend.observe import Observation, resized_to_width
+from moseg_ros.frontend.track_evidence import dense_near
 from moseg_ros.synth.scenarios import render_sequence
 
 
@@ -153,7 +155,7 @@ class TestMotionFrontEnd:
             shares = []
             for frame in textured_frames(5):
                 front_end.update(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
-                shares.append(front_end._points.flow_checked)  # the tracker's own count
+                shares.append(front_end.observer._points.flow_checked)  # the tracker's own count
             return shares
 
         assert min(checked(1)[1:]) > 0.5  # the pan's DIS flow confirms most background tracks
@@ -177,7 +179,8 @@ class TestStickyFlags:
     @staticmethod
     def _sticky(refits: list[tuple[int, list[int]]]) -> list[list[int]]:
         front_end = MotionFrontEnd(MotionFrontEndConfig(dense=False))
-        return [front_end._count_flags(np.array(flagged, dtype=np.int64), TestStickyFlags.ALIVE, index).tolist()
+        tracks = front_end.evidence.tracks
+        return [tracks._count_flags(np.array(flagged, dtype=np.int64), TestStickyFlags.ALIVE, index).tolist()
                 for index, flagged in refits]
 
     def test_refitting_every_frame_a_flag_sticks_from_its_second_window(self):
@@ -205,7 +208,7 @@ class TestCatchUp:
             observation = front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY))
             if index % every == 0:
                 flagged = front_end.refit(observation).flagged
-        return [(ids, evidence.distance) for ids, evidence in front_end._pairs], flagged
+        return [(ids, evidence.distance) for ids, evidence in front_end.evidence.tracks._pairs], flagged
 
     def test_catching_up_on_every_skipped_frame_holds_the_pairs_of_refitting_every_frame(self):
         every_frame, flagged_every = self._pairs(1, 0)
@@ -223,7 +226,7 @@ class TestCatchUp:
         observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
         front_end.refit(observations[0])
         front_end.refit(observations[-1])  # frames 2-4 had pairs and were skipped
-        assert len(front_end._pairs) == expected
+        assert len(front_end.evidence.tracks._pairs) == expected
         with_own = self._pairs(1, catch_up_pairs)[0]  # refitting every frame, nothing is skipped
         assert len(with_own) == MotionFrontEndConfig().window_length - MotionFrontEndConfig().track_motion.gap
 
@@ -232,7 +235,7 @@ class TestCatchUp:
         observations = [front_end.observe(cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)) for frame in textured_frames(6)]
         last = observations[-1]
         front_end.refit(replace(last, window=last.window[-1 - last.gap:]))
-        assert len(front_end._pairs) == 1
+        assert len(front_end.evidence.tracks._pairs) == 1
 
 
 class TestDenseCheirality:
@@ -378,7 +381,7 @@ def test_the_far_oncoming_car_is_flagged_from_its_first_frames(monkeypatch):
 
 
 def test_the_pairs_are_fitted_with_the_settings_for_the_tracking_width(monkeypatch):
-    import moseg_ros.frontend.motion as motion
+    import moseg_ros.frontend.track_evidence as motion
 
     widths = []
     fit = motion.pair_evidence
@@ -712,7 +715,7 @@ class TestMeasurable:
         observation = Observation(2, K, None, gray, (h, w), ((ids, now),) * 3)
         config = MotionFrontEndConfig(dense_width=w, aperture_share=share)
         among = np.array([True, True, True, False, True, True])
-        return MotionFrontEnd(config)._measurable(np.arange(6), observation, among)
+        return MotionFrontEnd(config).evidence.tracks._measurable(np.arange(6), observation, among)
 
     def test_the_edge_along_the_parallax_is_not_measurable_and_the_corners_are(self):
         # Id 3 is on a corner but not asked about; ids 4 and 5 are not seen now: nothing to measure them by.

@@ -397,7 +397,7 @@ def test_object_level_needs_instances(ros_domain, tmp_path):
 def test_upstream_instances_are_paired_by_stamp(known, ros_domain, tmp_path, monkeypatch):
     """The node pairs every frame with its instance map; the sliding block flagged under its upstream id, or, when
     the segmenter does not know it (no instance there), under the method's own region id (2**30 up)."""
-    from moseg_ros.methods.moving_objects import OWN_REGION_BASE
+    from moseg_ros.frontend.instance_decisions import OWN_REGION_BASE
     from test_pipeline import block_truth
 
     log = tmp_path / "log"

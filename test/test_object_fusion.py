@@ -1,4 +1,4 @@
-"""The fused object-level decision on a window of regions (methods/object_fusion.py), on synthetic streets whose
+"""The fused object-level decision on a window of regions (frontend/fusion.py), on synthetic streets whose
 exact instances stand in for the front-end's regions, and in the pipeline (``object_fusion``)."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from moseg_ros.frontend.tracks import PointTracker, TrackerConfig
 from moseg_ros.frontend.window import WindowFrame
 from moseg_ros.frontend.motion import MotionFrontEnd
 from moseg_ros.methods.base import Status
-from moseg_ros.methods.object_fusion import FUSION_CONFIG, MIN_FRAMES, FusionDecision, FusionJob, ObjectFusion
+from moseg_ros.frontend.fusion import FUSION_CONFIG, MIN_FRAMES, FusionDecision, FusionJob, ObjectFusion
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.synth.scenarios import render_sequence
 
@@ -129,7 +129,7 @@ def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatc
         return FusionDecision(job.index, job.windows, job.candidates, 0.3)
 
     monkeypatch.setattr(ObjectFusion, "fuse", slow)
-    monkeypatch.setattr(MotionFrontEnd, "depth", lambda self: np.zeros(self._grays[-1].shape, dtype=bool))
+    monkeypatch.setattr(MotionFrontEnd, "depth", lambda self: np.zeros(self.observer._grays[-1].shape, dtype=bool))
     seq = render_sequence("ahead", seed=0, n_frames=16, width=WIDTH, height=HEIGHT)
     results = []
     with Pipeline(PipelineConfig(object_fusion=True, refit="background")) as pipeline:

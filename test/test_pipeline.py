@@ -168,12 +168,12 @@ def test_a_tall_frame_is_processed_at_no_more_than_working_pixels():
         result = pipeline.process(frame.rgb, frame.stamp_ns, frame.instances)
         statuses.append(result.status)
         assert result.masks.dynamic.shape == (240, 320)
-    dense = pipeline.method._front_end._grays[-1]
+    dense = pipeline.method._front_end.observer._grays[-1]
     assert dense.shape == (round(240 * np.sqrt(20_000 / 76_800)), round(320 * np.sqrt(20_000 / 76_800)))
     assert statuses[0] == "warmup" and set(statuses[1:]) == {"ok"}
     unlimited = Pipeline(PipelineConfig(working_pixels=0))
     unlimited.process(sequence.frames[0].rgb, sequence.frames[0].stamp_ns)
-    assert unlimited.method._front_end._grays[-1].shape == (240, 320)
+    assert unlimited.method._front_end.observer._grays[-1].shape == (240, 320)
 
 
 @pytest.mark.parametrize("shape", [(8, 64), (31, 640), (16, 128), (30, 300), (1, 1), (15, 15), (1, 640), (640, 1),

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from conftest import textured_frames
-from moseg_ros.frontend.motion import MotionFrontEnd
+from moseg_ros.frontend.evidence import MotionEvidence
 from moseg_ros.methods.base import Status
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.refit import BackgroundRefit
@@ -193,13 +193,13 @@ class TestBackgroundRefit:
 def _slow_refit(monkeypatch: pytest.MonkeyPatch, seconds: float) -> None:
     """Each refit takes ``seconds`` more, in its first half (the track test, which a background worker hands over
     before the dense half)."""
-    original = MotionFrontEnd.refit_tracks
+    original = MotionEvidence.refit_tracks
 
     def slow(self, observation):
         time.sleep(seconds)
         return original(self, observation)
 
-    monkeypatch.setattr(MotionFrontEnd, "refit_tracks", slow)
+    monkeypatch.setattr(MotionEvidence, "refit_tracks", slow)
 
 
 class TestPipelineWithBackgroundRefit:
@@ -350,14 +350,14 @@ class TestPipelineWithBackgroundRefit:
         a refit took longer than that, no frame waits (the wait could not bring its own refit)."""
         from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
 
-        original = MotionFrontEnd.refit_tracks
+        original = MotionEvidence.refit_tracks
         sleeps = iter([0.0] * 3 + [0.5] * 20)
 
         def varying(self, observation):
             time.sleep(next(sleeps))
             return original(self, observation)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", varying)
+        monkeypatch.setattr(MotionEvidence, "refit_tracks", varying)
         results = []
         with Pipeline(PipelineConfig(), live=True) as pipeline:
             for i, frame in enumerate(textured_frames(16)):
@@ -373,7 +373,7 @@ class TestPipelineWithBackgroundRefit:
         waiting for the whole refit would give about 4), and the first decisions still wait: the second frame, with
         no track pair, for its whole refit (its mask is the dense half's alone, as inline), the third, the first
         with a pair, for its track half (its dense mask the second frame's, as every frame's after it)."""
-        original = MotionFrontEnd.refit_dense
+        original = MotionEvidence.refit_dense
 
         def slow(self, observation, tracks):
             time.sleep(0.3)
@@ -382,7 +382,7 @@ class TestPipelineWithBackgroundRefit:
         frames = textured_frames(20)
         with Pipeline(PipelineConfig(refit="inline")) as inline:
             expected = [inline.process(frame, 1_000 + i * 100_000_000).masks.dynamic for i, frame in enumerate(frames)]
-        monkeypatch.setattr(MotionFrontEnd, "refit_dense", slow)
+        monkeypatch.setattr(MotionEvidence, "refit_dense", slow)
         pipeline = Pipeline(PipelineConfig(refit="background", refit_wait_ms=0.0, refit_nice=0))
         try:
             results = []
@@ -406,7 +406,7 @@ class TestPipelineWithBackgroundRefit:
         half (every one with 1); refits that keep up (no delay) always fit it. The first decisions, which wait for
         their whole refits, always get them."""
         calls = {"tracks": 0, "dense": 0}
-        tracks_half, dense_half = MotionFrontEnd.refit_tracks, MotionFrontEnd.refit_dense
+        tracks_half, dense_half = MotionEvidence.refit_tracks, MotionEvidence.refit_dense
 
         def counted_tracks(self, observation):
             calls["tracks"] += 1
@@ -417,8 +417,8 @@ class TestPipelineWithBackgroundRefit:
             time.sleep(dense_seconds)
             return dense_half(self, observation, tracks)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", counted_tracks)
-        monkeypatch.setattr(MotionFrontEnd, "refit_dense", counted_dense)
+        monkeypatch.setattr(MotionEvidence, "refit_tracks", counted_tracks)
+        monkeypatch.setattr(MotionEvidence, "refit_dense", counted_dense)
         config = PipelineConfig(refit="background", refit_wait_ms=0.0, refit_nice=0, refit_dense_every=every)
         with Pipeline(config) as pipeline:
             results = []
@@ -439,13 +439,13 @@ class TestPipelineWithBackgroundRefit:
         track flags (age 0), waiting no longer than AUTO_WAIT_SHARE of that 0.4 s."""
         from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
 
-        original = MotionFrontEnd.refit_dense
+        original = MotionEvidence.refit_dense
 
         def slow(self, observation, tracks):
             time.sleep(0.33)
             return original(self, observation, tracks)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit_dense", slow)
+        monkeypatch.setattr(MotionEvidence, "refit_dense", slow)
         results = []
         with Pipeline(PipelineConfig(refit_duty=1.0), live=True) as pipeline:
             for i, frame in enumerate(textured_frames(12)):
@@ -457,7 +457,7 @@ class TestPipelineWithBackgroundRefit:
         assert max(waits) <= AUTO_WAIT_SHARE * 0.4 + 0.01, waits
 
     def test_a_refit_that_raises_gives_a_failed_frame_then_recovers(self, monkeypatch: pytest.MonkeyPatch) -> None:
-        original = MotionFrontEnd.refit_tracks
+        original = MotionEvidence.refit_tracks
         calls = {"n": 0}
 
         def flaky(self, observation):
@@ -466,7 +466,7 @@ class TestPipelineWithBackgroundRefit:
                 raise FloatingPointError("degenerate pair")
             return original(self, observation)
 
-        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", flaky)
+        monkeypatch.setattr(MotionEvidence, "refit_tracks", flaky)
         pipeline = Pipeline(PipelineConfig(refit="background"))
         try:
             kinds = []
@@ -492,7 +492,7 @@ class TestPipelineWithBackgroundRefit:
             held.append(weakref.ref(arrays))
             raise FloatingPointError("degenerate pair")
 
-        monkeypatch.setattr(MotionFrontEnd, "refit_tracks", failing)
+        monkeypatch.setattr(MotionEvidence, "refit_tracks", failing)
         pipeline = Pipeline(PipelineConfig(refit="background"))
         gc.disable()
         try:

@@ -24,7 +24,7 @@ from moseg_ros.core.track_tests.footing import footing_allowance, footing_excess
 from moseg_ros.core.track_tests.ground import (aperture_share, decided_ratios, ground_floor, ground_parallax_ratio,
                                                ground_slope, standing_rows, standing_shortfall)
 from moseg_ros.core.track_tests.settings import REFERENCE_WIDTH, TrackMotionConfig
-from moseg_ros.frontend.motion import MotionFrontEndConfig
+from moseg_ros.frontend.motion_config import MotionFrontEndConfig
 
 K = np.array([[500.0, 0, 320], [0, 500, 120], [0, 0, 1]])
 

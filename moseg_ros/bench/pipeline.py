@@ -46,7 +46,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     runs, from each frame back to the one before at ``working_width`` and ``working_pixels``.
     """
     from moseg_ros.frontend.flow import DenseFlow
-    from moseg_ros.frontend.motion import resized_to_width
+    from moseg_ros.frontend.observe import resized_to_width
     from moseg_ros.frontend.tracks import PointTracker
     from moseg_ros.methods.moving_objects import front_end_config
 

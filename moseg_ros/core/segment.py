@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from moseg_ros.core import affinity, clustering, ground, hypotheses
+from moseg_ros.core import affinity, clustering, ground_contact, hypotheses
 
 TRAJECTORY_VIEWS = ("fundamental", "homography", "affine")
 
@@ -154,7 +154,7 @@ class SegmentConfig:
             views disagree about an object (epipolar: consistent with the camera; flow: not) it is reported
             as moving (see segment_objects).
         ground_contact: decide objects that stand on a visible ground plane by the ground-contact test
-            (core/ground.py) instead of by their motion cluster; None switches the test off (the paper alone).
+            (core/ground_contact.py) instead of by their motion cluster; None switches the test off (the paper alone).
     """
 
     gap: int = 2
@@ -170,7 +170,7 @@ class SegmentConfig:
     n_iter: int = 5
     k_max: int | None = None
     tie_tolerance: float = 0.05
-    ground_contact: ground.GroundConfig | None = field(default_factory=ground.GroundConfig)
+    ground_contact: ground_contact.GroundConfig | None = field(default_factory=ground_contact.GroundConfig)
 
 
 @dataclass(frozen=True)
@@ -186,7 +186,7 @@ class ObjectSegmentation:
         confidence: (K,) in [0, 1], how clearly each object sits in its cluster rather than the nearest
             competing one, or how far its contact score is from 1 (see segment_objects).
         n_motions: number of motion clusters.
-        contact: (K,) ground-contact score of each object (core/ground.py; NaN = no contact seen or test off).
+        contact: (K,) ground-contact score of each object (core/ground_contact.py; NaN = no contact seen or test off).
     """
 
     object_ids: np.ndarray
@@ -341,7 +341,7 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
     K comes from the eigengap of the mean normalized affinity (K = 1 possible: nothing moves; ties towards
     more motions) unless given. The background cluster is the one holding object 0; every object outside it
     is dynamic, except that objects standing on a visible ground plane are decided by the ground-contact
-    test (core/ground.py; ``config.ground_contact``, None = the paper alone): moving exactly when their
+    test (core/ground_contact.py; ``config.ground_contact``, None = the paper alone): moving exactly when their
     contact score exceeds 1. The background pseudo-object spans ground, facades and sky at every depth, so no
     one flow model describes it and the flow view alone takes depth for motion; the ground plane gives the
     depth at each object's foot. Measured on the synthetic presets (16 frames, 621x188, seeds 0-1, the
@@ -386,7 +386,7 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
 
     contact = np.full(n_items, np.nan)
     if config.ground_contact is not None and n_items > 1:
-        contact[1:] = ground.contact_scores(labels, flows, object_ids[1:], config.ground_contact)
+        contact[1:] = ground_contact.contact_scores(labels, flows, object_ids[1:], config.ground_contact)
 
     def result(cluster: np.ndarray, confidence: np.ndarray) -> ObjectSegmentation:
         background = int(cluster[0])

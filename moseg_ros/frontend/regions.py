@@ -1,94 +1,229 @@
-"""Regions from the motion front-end's evidence: flagged tracks linked into groups, each group's hull drawn.
+"""Stage 3, regions: the moving evidence of a frame drawn and grouped into regions with lasting ids.
 
-Flagged tracks closer than a link distance are linked (scipy.spatial.cKDTree's pairs, then the graph's connected
-components, scipy.sparse.csgraph); each group large enough fills its hull: the convex hull, or the triangles of its
-tracks' Delaunay triangulation whose sides are short (an alpha shape's region, which follows the bays of an outline
-that the convex hull bridges), unless the tracks known to be static crowd it. ``touching`` keeps the connected
-regions of one mask that reach another's pixels (hysteresis, as in Canny's edges).
+``RegionStage`` runs on the frame path and reads the frame only from its ``Observation`` and the evidence only
+from a ``Refit``: hulls of the flagged tracks where they are now (frontend/hulls.py), grown and trimmed by the flow
+view around each group (core/object_flow.py), the refit's dense mask carried along the flow, evidence remembered
+for a frame and lasting regions coasting where theirs drops out (frontend/memory.py), ids kept by overlap
+(frontend/instances.py).
 """
 
 from __future__ import annotations
 
 import cv2
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import Delaunay, QhullError, cKDTree
+
+from moseg_ros.core.baseline import homography_distance, sampson_pixels
+from moseg_ros.core.flow_field import away_from_border
+from moseg_ros.core.object_flow import refine_by_flow
+from moseg_ros.core.robust import fundamental_polished, homography_ransac
+from moseg_ros.frontend.evidence import DEPTH_LABEL, Refit, dense_labels
+from moseg_ros.frontend.hulls import hull_mask, linked_groups
+from moseg_ros.frontend.instances import InstanceTracker, propose_regions
+from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, remembered
+from moseg_ros.frontend.motion_config import MotionFrontEndConfig
+from moseg_ros.frontend.observe import Observation
+from moseg_ros.frontend.window import WindowFrame
+from moseg_ros.timing import Stages
 
 
-def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndarray:
-    """(N,) group of each of the (N, 2) ``points`` when points closer than ``link_px`` are linked; -1 for the
-    points of groups smaller than ``min_group``."""
-    if len(points) < min_group:
-        return np.full(len(points), -1, dtype=np.int64)
-    pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, group = connected_components(graph, directed=False)
-    return np.where(np.bincount(group)[group] >= min_group, group, -1).astype(np.int64)
+class RegionStage:
+    """Stage 3, regions: the moving evidence of one frame grouped into regions whose ids last from frame to frame.
 
-
-def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
-              static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None,
-              reach_px: float = 0.0) -> np.ndarray:
-    """Link points closer than ``link_px``; fill the hull of every group of ``min_group`` or more whose points
-    are at least ``purity`` of its points plus the ``static`` points inside its convex hull.
-
-    Args:
-        points: (N, 2) positions (x, y).
-        shape: (H, W) of the mask.
-        link_px: largest distance between two linked points.
-        min_group: smallest group that makes a region.
-        static: optional (S, 2) positions of points known not to move; a hull they crowd is not drawn.
-        purity: the smallest share of a hull's points that must be ``points`` (0: every group is drawn).
-        group: optional (N,) ``linked_groups(points, link_px, min_group)``, when the caller has it already.
-        reach_px: > 0: a group's hull is the union of the triangles of its points' Delaunay triangulation whose
-            sides are at most this long (``reach_triangles``: a concave outline); 0: its convex hull.
-
-    Returns:
-        (H, W) bool mask.
+    ``apply`` draws the tracks a refit flagged where they are now (hulls of linked groups), grows and trims them by
+    the flow view around each group, adds the refit's dense mask carried along the flow to this frame, remembers
+    evidence for ``memory_frames``, lets lasting regions coast on their tracks where their evidence drops out, and
+    labels the result (InstanceTracker). Runs on the frame path; it reads the frame only from its ``Observation``.
     """
-    mask = np.zeros(shape, dtype=np.uint8)
-    group = linked_groups(points, link_px, min_group) if group is None else group
-    sizes = np.bincount(group[group >= 0])
-    static = np.zeros((0, 2)) if static is None or purity <= 0 else np.rint(static).astype(np.int64)
-    for g in np.flatnonzero(sizes >= min_group):
-        members = points[group == g]
-        hull = cv2.convexHull(np.rint(members).astype(np.int32))
-        x0, y0, w, h = cv2.boundingRect(hull)
-        local = np.zeros((h, w), dtype=np.uint8)
-        cv2.fillConvexPoly(local, hull - np.array([x0, y0], dtype=np.int32), 1)
-        if len(static):
-            near = static - [x0, y0]
-            near = near[(near[:, 0] >= 0) & (near[:, 0] < w) & (near[:, 1] >= 0) & (near[:, 1] < h)]
-            if sizes[g] < purity * (sizes[g] + local[near[:, 1], near[:, 0]].sum()):
-                continue
-        triangles = reach_triangles(members, reach_px) if reach_px > 0 and len(members) > 3 else None
-        if triangles is not None:
-            local[:] = 0
-            if len(triangles):
-                cv2.fillPoly(local, list(np.rint(triangles - [x0, y0]).astype(np.int32)), 1)
-        view = mask[y0:y0 + h, x0:x0 + w]
-        view |= local[:view.shape[0], :view.shape[1]]
-    return mask.astype(bool)
 
+    def __init__(self, config: MotionFrontEndConfig) -> None:
+        self.config = config
+        self._regions = InstanceTracker(keep_apart_after=config.keep_apart_after,
+                                        keep_apart_share=config.keep_apart_share,
+                                        keep_apart_motion=config.keep_apart_motion)
+        self.reset()
 
-def reach_triangles(points: np.ndarray, reach_px: float) -> np.ndarray | None:
-    """(T, 3, 2) the triangles of the (N, 2) ``points``' Delaunay triangulation (scipy.spatial.Delaunay) whose
-    sides are all at most ``reach_px`` long: the alpha shape's region, which follows an outline's bays where the
-    convex hull bridges them. None when the points span no triangle (collinear, or fewer than three distinct)."""
-    try:
-        corners = points[Delaunay(points).simplices]
-    except QhullError:
-        return None
-    sides = np.linalg.norm(corners - np.roll(corners, 1, axis=1), axis=2)
-    return corners[sides.max(axis=1) <= reach_px]
+    def reset(self) -> None:
+        """Forget every region and what the last frames drew."""
+        self._regions.reset()
+        self._observation: Observation | None = None  # the frame last applied
+        self.moving_track_points = np.zeros((0, 2), dtype=np.float32)
+        self.moving = np.zeros((0, 0), dtype=bool)
+        # The refit the last frame applied and which of its tracks it drew (``depth``).
+        self._applied: tuple[Refit | None, np.ndarray] | None = None
+        # The last frame's evidence ages (``remembered``) and its index.
+        self._memory: tuple[int, np.ndarray] | None = None
+        # The refit dense mask the last frame applied: (refit's frame, the frame it was carried to, the mask there).
+        self._carry: tuple[int, int, np.ndarray] | None = None
+        # The last frame's published regions (its index, labels, its evidence before coasting) and each lasting
+        # region's coasting.
+        self._published: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._coasting: dict[int, Coast] = {}
+        # ``_seen_back``'s last answer and what it answered: ((frame, frames back), (rows, now, then)).
+        self._seen: tuple[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
 
+    def apply(self, observation: Observation, refit: Refit | None, stages: Stages) -> np.ndarray:
+        """(h, w) int32 moving regions with persistent ids of ``observation``'s frame from ``refit`` (this frame's
+        or an older one; None: nothing), timed in ``stages`` (regions)."""
+        self._observation = observation
+        ids, positions = observation.window[-1]
+        with stages("regions"):
+            small = observation.gray.shape
+            flagged = np.isin(ids, refit.flagged if refit is not None else np.zeros(0, dtype=np.int64))
+            scale = small[1] / observation.tracking_shape[1]
+            here = flagged & away_from_border(positions * scale, small, self.config.track_border * small[1])
+            self.moving_track_points = positions[here]
+            # Tracks that lived through the window unflagged, at this size: static evidence.
+            settled = positions[np.isin(ids, observation.window[0][0]) & ~flagged] * scale
+            link_px = self.config.link_fraction * small[1]
+            points = self.moving_track_points * scale
+            group = linked_groups(points, link_px, self.config.min_group)
+            moving = hull_mask(points, small, link_px, self.config.min_group, settled, self.config.hull_purity, group,
+                               self.config.hull_reach * link_px)
+            if self.config.object_flow is not None:
+                moving = self._refined(observation, moving, here, group, scale, link_px)
+            self._applied = (refit, here)
+            if refit is not None and refit.dense is not None:
+                moving |= self._confirmed(observation, self._carried(observation, refit), refit)
+            moving = self._remembered(observation, moving, settled)
+            evidence = moving
+            moving = self._coasted(observation, moving, settled, scale)
+            self.moving = moving
+            labels = self._regions.update(propose_regions(moving, self.config.min_region_area, self.config.close_px),
+                                          observation.flow_here)
+            self._published = (observation.index, labels, evidence)
+            return labels
 
-def touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """(h, w) bool: the 8-connected regions of ``candidates`` that share a pixel with ``seeds`` (both (h, w)
-    bool)."""
-    count, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
-    keep = np.zeros(count, dtype=bool)
-    keep[labels[candidates & seeds]] = True
-    keep[0] = False
-    return keep[labels]
+    def window_frame(self, labels: np.ndarray) -> WindowFrame:
+        """The current frame as an object-level window of this front-end's regions takes it (``Window(backward=
+        True)``, frontend/window.py): ``labels`` (its regions, (h, w) at the dense size), its dense flow back to the
+        frame before (None without one) and its tracks at the dense size."""
+        observation = self._observation
+        ids, points = observation.window[-1]
+        scale = observation.gray.shape[1] / observation.tracking_shape[1]
+        return WindowFrame(labels, observation.flow_here, ids.copy(), (points * scale).astype(np.float32))
+
+    def depth(self) -> np.ndarray:
+        """(h, w) bool at the dense size: the last applied frame's evidence that came from the depth tests
+        (cheirality, the ground's, the footing: motion along the epipolar lines), the pixels under its drawn
+        tracks that they flagged (``Refit.depth_flagged``) and its dense depth mask carried to it. Worked out when
+        asked (frontend/fusion.py), not on every frame."""
+        observation = self._observation
+        ids, points = observation.window[-1]
+        small = observation.gray.shape
+        depth = np.zeros(small, dtype=bool)
+        if self._applied is None or self._applied[0] is None:
+            return depth
+        refit, here = self._applied
+        scale = small[1] / observation.tracking_shape[1]
+        on_depth = here & np.isin(ids, refit.depth_flagged)
+        xy = np.clip(np.rint(points[on_depth] * scale).astype(np.int64), 0, [small[1] - 1, small[0] - 1])
+        depth[xy[:, 1], xy[:, 0]] = True
+        if self._carry is not None and self._carry[1] == observation.index:
+            depth |= self._carry[2] == DEPTH_LABEL
+        return depth
+
+    def _coasted(self, observation: Observation, moving: np.ndarray, settled: np.ndarray,
+                 scale: float) -> np.ndarray:
+        """``moving`` with the last frame's lasting regions whose evidence dropped out drawn where their tracks
+        went (``coasted``)."""
+        last, config = self._published, self.config
+        if config.coast_frames <= 0 or last is None or last[0] != observation.index - 1 or len(observation.window) < 2:
+            self._coasting = {}
+            return moving
+        _, now, before = self._seen_back(observation, 1)
+        lasting = {region: self._coasting.get(region, Coast()) for region, age in self._regions.ages.items()
+                   if age >= config.coast_after}
+        out, self._coasting = coasted(moving, last[1], last[2], lasting, before * scale,
+                                      now * scale, settled, config.coast_frames, config.coast_tracks,
+                                      config.coast_cover, config.memory_veto, observation.flow_here)
+        return out
+
+    def _remembered(self, observation: Observation, fresh: np.ndarray, settled: np.ndarray) -> np.ndarray:
+        """``fresh`` (h, w) bool with the evidence of the last ``memory_frames`` frames carried to this one
+        (``remembered``, with ``settled`` (S, 2) points at this size)."""
+        last = self._memory
+        before = last[1] if last is not None and last[0] == observation.index - 1 else None
+        age = remembered(fresh, before, observation.flow_here, settled, self.config.memory_frames,
+                         self.config.memory_veto)
+        self._memory = (observation.index, age)
+        return age != NO_EVIDENCE
+
+    def _refined(self, observation: Observation, moving: np.ndarray, here: np.ndarray, group: np.ndarray,
+                 scale: float, link_px: float) -> np.ndarray:
+        """``moving`` grown and trimmed by the flow view around each ``group`` (of the moving tracks, those
+        ``here``), from the tracks' and the dense flow's motion back over ``dense_gap`` frames; unchanged
+        without this frame's dense flow."""
+        gap, flow = self.config.dense_gap, observation.flow_here
+        if flow is None or len(observation.window) <= gap or not here.any():
+            return moving
+        rows, now, before = self._seen_back(observation, gap)
+        of_track = np.full(len(here), -1, dtype=np.int64)
+        of_track[here] = group
+        return refine_by_flow(moving, flow, now * scale, (before - now) * scale, of_track[rows], link_px,
+                              self.config.object_flow)
+
+    def _seen_back(self, observation: Observation, frames: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current frame's tracks also seen ``frames`` frames back (at most the window's length): (M,) their
+        rows in the frame's track arrays, (M, 2) their positions now and then (tracking pixels), by increasing id.
+        Worked out once a frame for each ``frames``: the coasting, the flow view and the late dense mask's test
+        all ask it."""
+        key = (observation.index, frames)
+        if self._seen is None or self._seen[0] != key:
+            (before_ids, before), (now_ids, now) = observation.window[-1 - frames], observation.window[-1]
+            _, rows, columns = np.intersect1d(now_ids, before_ids, assume_unique=True, return_indices=True)
+            self._seen = (key, (rows, now[rows], before[columns]))
+        return self._seen[1]
+
+    def _carried(self, observation: Observation, refit: Refit) -> np.ndarray:
+        """``refit``'s ``dense_labels`` warped from its frame to the current one along the backward flows since:
+        one warp a frame while the same refit is applied frame after frame (the last frame's carried labels go one
+        flow on, the same steps as warping from the refit's frame each time, and the labels are not drawn again)."""
+        index = refit.dense_index
+        last, flow = self._carry, observation.flow_here
+        if last is not None and last[:2] == (index, observation.index - 1) and flow is not None:
+            here = carried(last[2], observation.index - 1, ((observation.index, flow),))
+        else:
+            here = carried(dense_labels(refit), index, observation.backward)
+        self._carry = (index, observation.index, here)
+        return here
+
+    def _confirmed(self, observation: Observation, here: np.ndarray, refit: Refit) -> np.ndarray:
+        """(h, w) bool: ``refit``'s dense mask, ``here`` as ``dense_labels`` carried to this frame, with the pixels
+        of a late one (of an earlier frame) kept where this frame's backward flow leaves its tracks' geometry by
+        ``late_dense_px`` (``late_dense_planar_px`` from their homography) or the depth tests flagged them (the
+        module's docstring); the whole of it when this frame's geometry is not known."""
+        depth, here = here == DEPTH_LABEL, here > 0
+        flow = observation.flow_here
+        if refit.dense_index >= observation.index or self.config.late_dense_px <= 0 or flow is None or not here.any():
+            return here
+        ys, xs = np.nonzero(here)
+        points = np.stack([xs, ys], axis=1).astype(np.float32)
+        distance = self._frame_distance(observation, points, points + flow[ys, xs], refit.dense_planar,
+                                        here.shape[1] / observation.tracking_shape[1])
+        if distance is None:
+            return here
+        still = distance >= (self.config.late_dense_planar_px if refit.dense_planar else self.config.late_dense_px)
+        kept = depth.copy()
+        kept[ys[still], xs[still]] = True
+        return kept
+
+    def _frame_distance(self, observation: Observation, points: np.ndarray, matches: np.ndarray, planar: bool,
+                        scale: float) -> np.ndarray | None:
+        """(N,) distance in pixels of N correspondences of this frame ((N, 2) ``points`` here, ``matches`` in the
+        frame before, at ``scale`` times the tracking pixels) from the geometry of the frame's pair of track
+        positions: the transfer error of their homography when ``planar``, else the Sampson distance of their F.
+        None without enough tracks seen in both, with too little motion to fix it, or with no model."""
+        if len(observation.window) < 2:
+            return None
+        _, now, before = self._seen_back(observation, 1)
+        config = self.config.track_motion
+        if len(now) < config.min_tracks:
+            return None
+        if np.median(np.linalg.norm(now - before, axis=1)) < config.min_parallax_px:
+            return None
+        now, before, inlier_px = now * scale, before * scale, config.inlier_px * scale
+        if planar:
+            homography, _ = homography_ransac(now, before, cv2.RANSAC, inlier_px)
+            return None if homography is None else homography_distance(homography, points, matches)
+        fundamental, _ = fundamental_polished(now, before, inlier_px)
+        return None if fundamental is None else sampson_pixels(fundamental, points, matches)

@@ -62,3 +62,6 @@ class EpipolarBaseline:
         ids = np.array(sorted(i for i, age in self._regions.ages.items()
                               if age >= self.config.min_persistence), dtype=np.int32)
         return labels, ids, found
+
+
+METHOD = EpipolarBaseline

@@ -28,7 +28,7 @@ class ObjectLevel:
     """Object-level fusion on upstream instances, decisions carried by instance id between refits."""
 
     name = "object_level"
-    flow_preset = "medium"  # the ground-contact test compares flows of a pixel or two (core/ground.py)
+    flow_preset = "medium"  # the ground-contact test compares flows of a pixel or two (core/ground_contact.py)
 
     def __init__(self, config: PipelineConfig) -> None:
         self.config = config
@@ -82,3 +82,6 @@ class ObjectLevel:
             self._object_dynamic = result.object_ids[result.dynamic].astype(np.int32)
             self._since_refit = 0
         return np.intersect1d(self._object_dynamic, np.array(sorted(present), dtype=np.int32))
+
+
+METHOD = ObjectLevel

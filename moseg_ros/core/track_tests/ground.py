@@ -8,7 +8,6 @@ falls short of the floor by ``shortfall_px`` and a share. docs/method.md has the
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from moseg_ros.core.track_tests.cheirality import Parallax

@@ -8,7 +8,7 @@ region moves when it lies outside that cluster, or when the depth tests flagged 
 ``MotionFrontEnd.depth()``), which play the ground-contact test's part: a car driving along the camera's axis
 images exactly as a static copy of it, so its own motion models are a static object's and only where it stands
 tells it from a parked car (docs/experiments.md has the derivation). The paper's own ground-contact test
-(core/ground.py) is left out: on real streets it rejected most movers.
+(core/ground_contact.py) is left out: on real streets it rejected most movers.
 
 Every region was flagged by the front-end's evidence, so this decision can only take some back: regions whose
 trajectories and flow the background's models explain. ``push`` runs on the frame path; ``taken_back`` where the

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 import pytest
 
-from moseg_ros.core import ground
+from moseg_ros.core import ground_contact as ground
 
 HEIGHT, WIDTH = 120, 200
 # Forward motion over a ground plane seen by a camera looking ahead: points low in the image move down and out.

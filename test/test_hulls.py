@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from moseg_ros.frontend.regions import hull_mask, linked_groups, reach_triangles, touching
+from moseg_ros.frontend.hulls import hull_mask, linked_groups, reach_triangles, touching
 
 
 class TestLinkedGroups:
