@@ -15,10 +15,10 @@ come before the mask of an older frame still being processed: pair images and ma
 from __future__ import annotations
 
 import collections
+from collections.abc import Callable
 import sys
 import threading
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -33,11 +33,11 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from moseg_ros.io.frames import camera_matrix, decode_frame, decode_instances
 from moseg_ros.io.image import declared_size, image_from_array
+from moseg_ros.diagnostics import NodeStatistics
 from moseg_ros.config import all_settings
 from moseg_ros.params import Setting, settings_of
 from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
 from moseg_ros.render import Masks, debug_overlay
-from moseg_ros.timing import next_arrival
 
 
 def _describe(entry: Setting) -> ParameterDescriptor:
@@ -62,16 +62,49 @@ PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
 PIPELINE_NAMES = tuple(entry.name for entry in settings_of(PipelineConfig))
 
 
-@dataclass
-class _Counters:
-    frames_in: int = 0
-    frames_out: int = 0
-    dropped: int = 0
-    carried: int = 0
-    bad_input: int = 0
-    resets: int = 0
-    failures: int = 0
-    no_instances: int = 0
+def checked_settings(settings: dict[str, Any]) -> dict[str, Any]:
+    """``settings`` (the node's parameters by name), each checked by the schema; ValueError names a bad one."""
+    for name, value in settings.items():
+        SCHEMA[name].check(value)
+    if settings["method"] == "object_level" and not settings["use_instances"] and not settings["instance_model"]:
+        raise ValueError("method object_level segments instances: set use_instances:=true and remap "
+                         "`instances`, or give an instance_model")
+    return settings
+
+
+def input_qos(settings: dict[str, Any]) -> QoSProfile:
+    """The QoS of the input subscriptions: ``image_qos`` with ``qos_depth``."""
+    depth = settings["qos_depth"]
+    if settings["image_qos"] == "sensor_data":
+        return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
+                          durability=qos_profile_sensor_data.durability, history=HistoryPolicy.KEEP_LAST)
+    reliability = ReliabilityPolicy.RELIABLE if settings["image_qos"] == "reliable" else ReliabilityPolicy.BEST_EFFORT
+    return QoSProfile(depth=depth, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
+
+
+class InstancesByStamp:
+    """Upstream instance images kept by stamp (the newest ``capacity``) until the worker pairs one with its image."""
+
+    def __init__(self, wake: threading.Condition, capacity: int = 50) -> None:
+        self._wake = wake  # the node's: the worker waits on it for frames and instances alike
+        self._capacity = capacity
+        self._by_stamp: collections.OrderedDict[tuple[int, int], Any] = collections.OrderedDict()
+
+    def add(self, msg: Any) -> None:
+        """Keep an instance image (the subscription's callback)."""
+        with self._wake:
+            self._by_stamp[(msg.header.stamp.sec, msg.header.stamp.nanosec)] = msg
+            while len(self._by_stamp) > self._capacity:
+                self._by_stamp.popitem(last=False)
+            self._wake.notify()
+
+    def take(self, image: Any, timeout: float, stopping: Callable[[], bool]) -> Any | None:
+        """The instance image with ``image``'s exact stamp, waiting up to ``timeout`` seconds (or until
+        ``stopping``); None when none came."""
+        key = (image.header.stamp.sec, image.header.stamp.nanosec)
+        with self._wake:
+            self._wake.wait_for(lambda: key in self._by_stamp or stopping(), timeout=timeout)
+            return self._by_stamp.pop(key, None)
 
 
 class SegmenterNode(Node):
@@ -81,20 +114,14 @@ class SegmenterNode(Node):
         super().__init__("segmenter", **kwargs)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
-        self.settings = {name: self.get_parameter(name).value for name in PARAMETERS}
-        self._check_choices()
-        self.pipeline = Pipeline(self._pipeline_config(), live=True)
+        self.settings = checked_settings({name: self.get_parameter(name).value for name in PARAMETERS})
+        self.pipeline = Pipeline(PipelineConfig(**{name: self.settings[name] for name in PIPELINE_NAMES}), live=True)
 
-        self.counters = _Counters()
-        self.statuses: collections.Counter[str] = collections.Counter()
-        self._latencies: collections.deque[float] = collections.deque(maxlen=500)
-        self._refit_ages: collections.deque[int | None] = collections.deque(maxlen=500)
-        self._fusion_ages: collections.deque[int | None] = collections.deque(maxlen=500)
-        self._arrivals: collections.deque[float] = collections.deque(maxlen=100)
-        self._departures: collections.deque[float] = collections.deque(maxlen=100)
+        self.statistics = NodeStatistics()
+        self.counters = self.statistics.counters
         self._queue: collections.deque[tuple[Any, float]] = collections.deque()
-        self._instances: collections.OrderedDict[tuple[int, int], Any] = collections.OrderedDict()
         self._wake = threading.Condition()
+        self._instances = InstancesByStamp(self._wake)
         self._running = True
         self.camera_matrix: np.ndarray | None = None
         self._camera_size: tuple[int, int] = (0, 0)
@@ -111,37 +138,17 @@ class SegmenterNode(Node):
         self.pub_diagnostics = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
 
         image_type = CompressedImage if self.settings["compressed_input"] else Image
-        qos = self._input_qos()
+        qos = input_qos(self.settings)
         self.create_subscription(image_type, "image", self._on_image, qos)
         self.create_subscription(CameraInfo, "camera_info", self._on_camera_info, qos)
         if self.settings["use_instances"]:
-            self.create_subscription(Image, "instances", self._on_instances, qos)
+            self.create_subscription(Image, "instances", self._instances.add, qos)
         self.create_timer(self.settings["diagnostics_period_s"], self._publish_diagnostics)
         self._worker = threading.Thread(target=self._work, name="segmenter-worker", daemon=True)
         self._worker.start()
         self.get_logger().info(
             f"segmenter ready: method={self.settings['method']} image_qos={self.settings['image_qos']} "
             f"input={image_type.__name__} use_instances={self.settings['use_instances']}")
-
-    def _check_choices(self) -> None:
-        for name, value in self.settings.items():
-            SCHEMA[name].check(value)
-        if (self.settings["method"] == "object_level" and not self.settings["use_instances"]
-                and not self.settings["instance_model"]):
-            raise ValueError("method object_level segments instances: set use_instances:=true and remap "
-                             "`instances`, or give an instance_model")
-
-    def _pipeline_config(self) -> PipelineConfig:
-        return PipelineConfig(**{name: self.settings[name] for name in PIPELINE_NAMES})
-
-    def _input_qos(self) -> QoSProfile:
-        depth = self.settings["qos_depth"]
-        if self.settings["image_qos"] == "sensor_data":
-            return QoSProfile(depth=depth, reliability=qos_profile_sensor_data.reliability,
-                              durability=qos_profile_sensor_data.durability, history=HistoryPolicy.KEEP_LAST)
-        reliability = (ReliabilityPolicy.RELIABLE if self.settings["image_qos"] == "reliable"
-                       else ReliabilityPolicy.BEST_EFFORT)
-        return QoSProfile(depth=depth, reliability=reliability, history=HistoryPolicy.KEEP_LAST)
 
     def _warn(self, kind: str, text: str) -> None:
         # Throttled per kind: rclpy's own throttle is per call site, which would let one kind hide another.
@@ -155,8 +162,7 @@ class SegmenterNode(Node):
         now = time.monotonic()
         evicted = None
         with self._wake:
-            self.counters.frames_in += 1
-            self._arrivals.append(now)
+            self.statistics.arrived(now)
             if len(self._queue) >= self.settings["queue_size"]:
                 evicted = self._queue.popleft()[0]
             self._queue.append((msg, now))
@@ -196,14 +202,6 @@ class SegmenterNode(Node):
             return None
         return self.camera_matrix
 
-    def _on_instances(self, msg: Image) -> None:
-        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        with self._wake:
-            self._instances[key] = msg
-            while len(self._instances) > 50:
-                self._instances.popitem(last=False)
-            self._wake.notify()
-
     # Worker thread.
     def _work(self) -> None:
         while True:
@@ -226,11 +224,7 @@ class SegmenterNode(Node):
     def _take_instances(self, msg: Any) -> np.ndarray | None:
         if not self.settings["use_instances"]:
             return None
-        key = (msg.header.stamp.sec, msg.header.stamp.nanosec)
-        with self._wake:
-            self._wake.wait_for(lambda: key in self._instances or not self._running,
-                                timeout=self.settings["instances_timeout_s"])
-            found = self._instances.pop(key, None)
+        found = self._instances.take(msg, self.settings["instances_timeout_s"], lambda: not self._running)
         if found is None:
             self.counters.no_instances += 1
             self._warn("no_instances", f"no instance image with stamp {_stamp_text(msg)}: segmenting without it")
@@ -241,7 +235,7 @@ class SegmenterNode(Node):
         """When the camera's next frame is expected (``timing.next_arrival``), the time this frame may spend on
         its refit (``refit_wait_ms`` -1); now when a frame already waits in the queue (there is no time)."""
         with self._wake:
-            return time.monotonic() if self._queue else next_arrival(self._arrivals)
+            return time.monotonic() if self._queue else self.statistics.next_arrival()
 
     def _handle(self, msg: Any, arrived: float) -> None:
         try:
@@ -264,19 +258,14 @@ class SegmenterNode(Node):
             self.counters.failures += 1
             result = self.pipeline.failed(stamp_ns, frame.shape[:2], error)
         kind = result.status.split(":")[0]
-        self.statuses[kind] += 1
-        self._refit_ages.append(result.refit_age)
-        self._fusion_ages.append(result.fusion_age)
+        self.statistics.processed(result.status, result.telemetry)
         if kind == "reset":
             self.counters.resets += 1
             self._warn("reset", f"window reset at {_stamp_text(msg)}: {result.status[7:]}")
         elif kind in ("too_small", "failed"):
             self._warn(kind, f"frame {_stamp_text(msg)} {frame.shape[:2]} got an empty mask: {result.status}")
         self._publish(msg.header, frame, result)
-        done = time.monotonic()
-        self._latencies.append(done - arrived)
-        self._departures.append(done)
-        self.counters.frames_out += 1
+        self.statistics.published(arrived, time.monotonic())
 
     def _publish(self, header: Any, frame: np.ndarray, result: FrameResult) -> None:
         masks = result.masks
@@ -297,27 +286,13 @@ class SegmenterNode(Node):
                     publisher.publish(image_from_array(Image, array, encoding, header))
 
     def _publish_diagnostics(self) -> None:
-        c = self.counters
-        latencies = np.array(self._latencies) * 1e3 if self._latencies else np.zeros(1)
-        problems = c.dropped + c.carried + c.bad_input + c.failures
+        problems = self.counters.problems
         status = DiagnosticStatus(
             level=DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
             name=f"{self.get_name()}: motion segmentation",
             message="dropped, carried, skipped or failed frames" if problems else "ok",
             hardware_id=self.get_fully_qualified_name())
-        values = {
-            "frames_in": c.frames_in, "frames_out": c.frames_out, "dropped": c.dropped, "carried": c.carried,
-            "bad_input": c.bad_input, "resets": c.resets, "failures": c.failures,
-            "frames_without_instances": c.no_instances,
-            "input_rate_hz": f"{_rate(self._arrivals):.2f}", "output_rate_hz": f"{_rate(self._departures):.2f}",
-            "latency_ms_p50": f"{np.percentile(latencies, 50):.1f}",
-            "latency_ms_p95": f"{np.percentile(latencies, 95):.1f}",
-            "queued": len(self._queue),
-            **_age_values("refit", self._refit_ages),
-            **_age_values("fusion", self._fusion_ages),
-            "calibrated": self.camera_matrix is not None,
-            **{f"status_{kind}": count for kind, count in sorted(self.statuses.items())},
-        }
+        values = {**self.statistics.values(), "queued": len(self._queue), "calibrated": self.camera_matrix is not None}
         status.values = [KeyValue(key=k, value=str(v)) for k, v in values.items()]
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
@@ -330,23 +305,6 @@ class SegmenterNode(Node):
             self._wake.notify_all()
         self._worker.join(timeout=5.0)
         self.pipeline.close()
-
-
-def _age_values(name: str, ages: collections.deque[int | None]) -> dict[str, str]:
-    """How old the ``name`` decisions (refit: the motion models; fusion: the fused object-level decision) of the
-    recent frames were, in frames (on a worker: 1 when it keeps up with the camera, more when frames come faster
-    than it decides); nothing when no recent frame had one."""
-    known = [age for age in ages if age is not None]
-    if not known:
-        return {}
-    return {f"{name}_age_last": str(known[-1]), f"{name}_age_max": str(max(known)),
-            f"{name}_age_mean": f"{np.mean(known):.2f}"}
-
-
-def _rate(times: collections.deque[float]) -> float:
-    if len(times) < 2 or times[-1] <= times[0]:
-        return 0.0
-    return (len(times) - 1) / (times[-1] - times[0])
 
 
 def _fits(msg: Any, masks: Masks | None) -> bool:

@@ -43,11 +43,10 @@ class FrameResult:
         dynamic_ids: (D,) ids of the instances flagged as moving.
         seconds: processing time of this frame.
         reason: why, for reset and failed.
-        refit_age: frames between this frame and the refit whose track flags it got (0: its own; None: none).
-        refit_stages: seconds per stage of that refit, on the first frame that applies it (else empty).
-        fusion_age: frames between this frame and the fused object-level decision it applies (``object_fusion``;
-            0: its own; None: none).
-        fusion_seconds: how long that decision took, on the first frame that applies it (else None).
+        refit_stages: seconds per stage of the refit the frame applies, on the first frame that applies it.
+        telemetry: the method's ``Decision.telemetry`` (moving_objects: ``refit_age`` and ``fusion_age``, frames
+            between this frame and the refit and fused decision it applies; ``fusion_seconds`` on the first frame
+            that applies a fused decision).
         stages: seconds per stage of this frame: prepare (grey, instances resized), the method's own stages (for
             moving_objects: tracks, fit, flow, dense_flow, dense_fit, regions and method_other; "decision" for
             methods that report none), render.
@@ -60,10 +59,8 @@ class FrameResult:
     seconds: float
     reason: str = ""
     stages: dict[str, float] = field(default_factory=dict)
-    refit_age: int | None = None
     refit_stages: dict[str, float] = field(default_factory=dict)
-    fusion_age: int | None = None
-    fusion_seconds: float | None = None
+    telemetry: dict[str, float] = field(default_factory=dict)
 
     @property
     def status(self) -> str:
@@ -187,8 +184,7 @@ class Pipeline:
         kind = Status.RESET if reason is not None else decision.status
         return FrameResult(stamp_ns, masks, kind, decision.dynamic_ids, time.perf_counter() - start,
                            reason=reason or "", stages=_stage_seconds(stages.seconds, decision.stages),
-                           refit_age=decision.refit_age, refit_stages=decision.refit_stages,
-                           fusion_age=decision.fusion_age, fusion_seconds=decision.fusion_seconds)
+                           refit_stages=decision.refit_stages, telemetry=decision.telemetry)
 
     def _frame_input(self, image: np.ndarray, instances: np.ndarray | None, camera_matrix: np.ndarray | None,
                      next_frame_at: float | None) -> FrameInput:

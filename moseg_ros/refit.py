@@ -164,3 +164,10 @@ class RefitError(RuntimeError):
     def of(cls, error: BaseException) -> RefitError:
         """The RefitError that reports ``error``."""
         return cls(f"{type(error).__name__}: {error}")
+
+
+def raise_worker_error(worker: BackgroundRefit) -> None:
+    """Raise a RefitError for the error of a fit of ``worker`` that raised since the last call, if any."""
+    error = worker.take_error()
+    if error is not None:
+        raise RefitError.of(error)

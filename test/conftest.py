@@ -57,7 +57,7 @@ def textured_frames(n: int, height: int = 188, width: int = 621, seed: int = 0,
 @pytest.fixture
 def textured_bag(tmp_path: Path) -> Path:
     """A 20-frame rgb8 bag at 10 Hz on /camera/image_raw with camera_info."""
-    from moseg_ros.io.bags import BagWriter
+    from moseg_ros.io.bag_writer import BagWriter
 
     path = tmp_path / "textured"
     k = np.array([[500.0, 0, 310], [0, 500, 94], [0, 0, 1]])

@@ -12,19 +12,9 @@ from rosbags.rosbag1 import Writer as Ros1Writer
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
-from moseg_ros.io.bags import (
-    BagDamagedError,
-    BagWriter,
-    Calibration,
-    camera_info_topic,
-    image_camera,
-    iter_messages,
-    list_topics,
-    ns_to_stamp_fields,
-    pick_image_topic,
-    read_images,
-    stamp_to_ns,
-)
+from moseg_ros.io.bag_images import Calibration, camera_info_topic, image_camera, pick_image_topic, read_images
+from moseg_ros.io.bag_writer import BagWriter
+from moseg_ros.io.bags import BagDamagedError, iter_messages, list_topics, ns_to_stamp_fields, stamp_to_ns
 
 T0 = 1_317_384_506_123_456_789  # a 2011 UTC stamp with nanosecond digits
 DT = 100_000_000

@@ -26,7 +26,7 @@ def test_object_level_bench_needs_the_synthetic_instances(tmp_path, capsys):
 def test_benches_refuse_bad_input_with_a_clear_error(tmp_path, capsys):
     """No traceback: a missing bag, a folder that is no bag, a bag with two image topics and no --topic, too
     few frames to render."""
-    from moseg_ros.io.bags import BagWriter
+    from moseg_ros.io.bag_writer import BagWriter
 
     two = tmp_path / "two"
     with BagWriter(two) as writer:
@@ -170,7 +170,8 @@ def test_the_fused_decisions_are_timed_once_each_and_their_ages_kept():
     from moseg_ros.bench.pipeline import _fusion_numbers
 
     def frame(age, seconds):
-        return SimpleNamespace(fusion_age=age, fusion_seconds=seconds)
+        named = {"fusion_age": age, "fusion_seconds": seconds}
+        return SimpleNamespace(telemetry={key: value for key, value in named.items() if value is not None})
 
     numbers = _fusion_numbers([frame(None, None), frame(0, 0.02), frame(1, None), frame(2, 0.04), frame(1, None)])
     assert numbers["fusions"] == 2
@@ -189,7 +190,7 @@ def test_each_refit_counts_once_with_all_it_did():
     from moseg_ros.bench.pipeline import _refit_numbers
 
     def frame(age, stages):
-        return SimpleNamespace(refit_age=age, refit_stages=stages)
+        return SimpleNamespace(telemetry={} if age is None else {"refit_age": age}, refit_stages=stages)
 
     results = [frame(None, {}), frame(0, {"fit": 0.02}), frame(0, {"fit": 0.01}),
                frame(1, {"fit": 0.01, "dense_fit": 0.04}), frame(1, {"fit": 0.03}), frame(2, {})]

@@ -10,19 +10,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from moseg_ros.cli import main as moseg
-from moseg_ros.eval.map import (
-    Frames,
-    camera_centres,
-    colmap_camera,
-    dynamic_landmark_pct,
-    export_frames,
-    extract_features,
-    keypoints_by_image,
-    landmarks_by_instance,
-    run_colmap,
-    trajectory_errors,
-    write_colmap_masks,
-)
+from moseg_ros.eval.colmap import (Frames, colmap_camera, export_frames, extract_features, keypoints_by_image,
+                                   run_colmap, write_colmap_masks)
+from moseg_ros.eval.map import camera_centres, dynamic_landmark_pct, landmarks_by_instance, trajectory_errors
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp
 
 pycolmap = pytest.importorskip("pycolmap", reason="pycolmap is not installed (requirements.txt pins it)")
@@ -145,7 +135,7 @@ class TestExportFrames:
     def test_no_usable_camera_info_leaves_colmap_to_estimate(self, tmp_path: Path, k: np.ndarray,
                                                             size: tuple[int, int]):
         from conftest import textured_frames
-        from moseg_ros.io.bags import BagWriter
+        from moseg_ros.io.bag_writer import BagWriter
 
         bag = tmp_path / "bag"
         with BagWriter(bag) as writer:
@@ -251,7 +241,7 @@ def test_a_kitti_pose_file_gives_the_reference_by_image_order(street: Path, tmp_
 
 
 def test_bag_without_frames_is_a_clear_error(tmp_path: Path, capsys) -> None:
-    from moseg_ros.io.bags import BagWriter
+    from moseg_ros.io.bag_writer import BagWriter
 
     with BagWriter(tmp_path / "two") as writer:
         for i in range(2):
@@ -264,7 +254,7 @@ def test_masks_of_another_bag_are_refused_before_colmap(street: Path, tmp_path: 
     """Masks at none of the bag's stamps would make "ours" a second unmasked run, found out minutes later."""
     import moseg_ros.eval.map as eval_map
     from moseg_ros.eval.map import OUR_MASKS
-    from moseg_ros.io.bags import BagWriter
+    from moseg_ros.io.bag_writer import BagWriter
 
     monkeypatch.setattr(eval_map, "run_colmap", lambda *a, **k: pytest.fail("COLMAP ran"))
     with BagWriter(tmp_path / "other") as writer:
@@ -275,7 +265,8 @@ def test_masks_of_another_bag_are_refused_before_colmap(street: Path, tmp_path: 
 
 
 def test_masks_for_some_frames_only_are_run_with_a_warning(tmp_path: Path, capsys) -> None:
-    from moseg_ros.eval.map import Frames, _check_masks_match
+    from moseg_ros.eval.colmap import Frames
+    from moseg_ros.eval.map import _check_masks_match
 
     frames = Frames(tmp_path, ["a", "b", "c"], [10, 20, 30], None, (4, 6))
     _check_masks_match({20: np.zeros((4, 6), bool)}, frames, tmp_path / "masks", tmp_path / "bag")

@@ -10,7 +10,8 @@ import pytest
 
 from conftest import textured_frames
 from moseg_ros.cli import main as moseg
-from moseg_ros.io.bags import BagWriter, iter_messages, stamp_to_ns
+from moseg_ros.io.bag_writer import BagWriter
+from moseg_ros.io.bags import iter_messages, stamp_to_ns
 from moseg_ros.io.image import image_to_array
 from moseg_ros.tools.fleet import LOCAL, find_bags, plan_jobs, process_fleet
 

@@ -13,7 +13,8 @@ from conftest import shared_data
 from scipy.spatial.transform import Rotation
 
 from moseg_ros.io import kitti
-from moseg_ros.io.bags import iter_messages, list_topics, read_images, stamp_to_ns
+from moseg_ros.io.bag_images import read_images
+from moseg_ros.io.bags import iter_messages, list_topics, stamp_to_ns
 from moseg_ros.io.kitti import kitti_to_bag
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -547,7 +547,7 @@ def test_a_decodable_frame_gets_an_empty_mask_when_the_nodes_own_step_raises(ros
         (header, masks), = published
         assert stamp_to_ns(header.stamp) == 42 * 1_000_000_000 and header.frame_id == "camera"
         assert masks.dynamic.shape == frame.shape[:2] and not masks.dynamic.any()
-        assert node.counters.failures == 1 and node.counters.frames_out == 1 and node.statuses["failed"] == 1
+        assert node.counters.failures == 1 and node.counters.frames_out == 1 and node.statistics.statuses["failed"] == 1
     finally:
         node.stop()
         node.destroy_node()

@@ -114,8 +114,8 @@ def test_inline_every_frame_applies_its_own_decision():
     seq = render_sequence("ahead", seed=0, n_frames=6, width=WIDTH, height=HEIGHT)
     with Pipeline(PipelineConfig(object_fusion=True, refit="inline")) as pipeline:
         results = [pipeline.process(frame.rgb, t * 100_000_000) for t, frame in enumerate(seq.frames)]
-    decided = [r for r in results if r.fusion_age is not None]
-    assert decided and all(r.fusion_age == 0 and r.fusion_seconds is not None for r in decided)
+    decided = [r.telemetry for r in results if "fusion_age" in r.telemetry]
+    assert decided and all(t["fusion_age"] == 0 and "fusion_seconds" in t for t in decided)
 
 
 def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatch):
@@ -137,10 +137,11 @@ def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatc
             results.append(pipeline.process(frame.rgb, t * 100_000_000))
             time.sleep(0.05)
     assert all(r.seconds < 0.3 for r in results)
-    applied = [t for t, r in enumerate(results) if r.fusion_age is not None]
-    assert applied and all(results[t].fusion_age > 0 for t in applied)
+    applied = [t for t, r in enumerate(results) if r.telemetry.get("fusion_age") is not None]
+    assert applied and all(results[t].telemetry.get("fusion_age") > 0 for t in applied)
     for t in applied:
-        assert not set(results[t].dynamic_ids.tolist()) & set(decided[t - results[t].fusion_age].tolist())
+        age = results[t].telemetry["fusion_age"]
+        assert not set(results[t].dynamic_ids.tolist()) & set(decided[t - age].tolist())
     assert any(r.dynamic_ids.size > 0 for r in results[:applied[0]])
 
 
@@ -160,17 +161,17 @@ def test_a_fused_decision_that_raises_on_its_worker_gives_a_failed_frame_then_re
         results = []
         for t, frame in enumerate(seq.frames):
             results.append(pipeline.process(frame.rgb, t * 100_000_000))
-            pipeline.method._fusion_worker.wait_idle(5)
+            pipeline.method._fusion.worker.wait_idle(5)
     failed = [r for r in results if r.kind is Status.FAILED]
     assert len(failed) == 1 and "RefitError: FloatingPointError: degenerate window" in failed[0].status
-    assert results[-1].kind is Status.OK and results[-1].fusion_age is not None
+    assert results[-1].kind is Status.OK and results[-1].telemetry.get("fusion_age") is not None
 
 
 def test_the_pipeline_runs_the_fused_decision_on_its_own_regions():
     seq = render_sequence("ahead", seed=0, n_frames=12, width=WIDTH, height=HEIGHT)
     flagged = []
     with Pipeline(PipelineConfig(object_fusion=True)) as pipeline:
-        fusion = pipeline.method._fusion
+        fusion = pipeline.method._fusion.fusion
         assert isinstance(fusion, ObjectFusion)
         for t, frame in enumerate(seq.frames):
             result = pipeline.process(frame.rgb, t * 100_000_000)

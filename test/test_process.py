@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from moseg_ros.cli import main as moseg
-from moseg_ros.io.bags import BagDamagedError, BagWriter, iter_messages, stamp_to_ns
+from moseg_ros.io.bag_writer import BagWriter
+from moseg_ros.io.bags import BagDamagedError, iter_messages, stamp_to_ns
 from moseg_ros.io.image import image_to_array
 from moseg_ros.tools.bag_masks import process_bag
 

@@ -221,7 +221,7 @@ class TestPipelineWithBackgroundRefit:
         assert [r.stamp_ns for r in results] == [1_000 + i * 100_000_000 for i in range(16)]
         assert all(r.masks.dynamic.shape == frames[0].shape[:2] for r in results)
         assert elapsed < 0.5 * 16 * 0.3  # waiting for every refit would take 4.8 s
-        ages = [r.refit_age for r in results if r.refit_age is not None]
+        ages = [r.telemetry.get("refit_age") for r in results if r.telemetry.get("refit_age") is not None]
         assert ages and max(ages) >= 2  # the worker fell behind, and the frames went on with older refits
         assert results[0].kind is Status.WARMUP
 
@@ -239,7 +239,7 @@ class TestPipelineWithBackgroundRefit:
                     results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
                     time.sleep(0.1)  # a 10 Hz camera: the worker keeps up
                 masks[name] = [r.masks.dynamic > 0 for r in results]
-                assert {r.refit_age for r in results[5:]} <= ({0} if name == "inline" else {0, 1, 2})
+                assert {r.telemetry.get("refit_age") for r in results[5:]} <= ({0} if name == "inline" else {0, 1, 2})
         finally:
             background.close()
         block = (slice(188 // 6 + 3 * 19, 188 // 6 + 3 * 19 + 62), slice(621 // 4, 621 // 4 + 77))
@@ -260,18 +260,18 @@ class TestPipelineWithBackgroundRefit:
             results = [pipeline.process(frame, 1_000 + i * 100_000_000) for i, frame in enumerate(textured_frames(6))]
         finally:
             pipeline.close()
-        assert results[0].kind is Status.WARMUP and results[0].refit_age is None
-        assert results[1].refit_age == results[2].refit_age == 0
-        assert min(r.refit_age for r in results[3:]) >= 1
+        assert results[0].kind is Status.WARMUP and results[0].telemetry.get("refit_age") is None
+        assert results[1].telemetry.get("refit_age") == results[2].telemetry.get("refit_age") == 0
+        assert min(r.telemetry.get("refit_age") for r in results[3:]) >= 1
 
     def test_the_first_decisions_wait_once_a_stream_even_when_their_refits_are_late(
             self, monkeypatch: pytest.MonkeyPatch) -> None:
         """Refits take 0.3 s and the first decisions may wait 50 ms: the second and third frames time out, and no
         later frame waits; after a reset the new stream's first decisions wait again."""
-        import moseg_ros.methods.moving_objects as moving_objects
+        import moseg_ros.frontend.refit_schedule as refit_schedule
 
         _slow_refit(monkeypatch, 0.3)
-        monkeypatch.setattr(moving_objects, "FIRST_REFIT_WAIT_S", 0.05)
+        monkeypatch.setattr(refit_schedule, "FIRST_REFIT_WAIT_S", 0.05)
         waits: list[float] = []
         wait_for = BackgroundRefit.wait_for
 
@@ -302,7 +302,7 @@ class TestPipelineWithBackgroundRefit:
                     for name, pipeline in (("inline", inline), ("waiting", waiting))}
         finally:
             waiting.close()
-        assert {r.refit_age for r in runs["waiting"][1:]} == {0}
+        assert {r.telemetry.get("refit_age") for r in runs["waiting"][1:]} == {0}
         for a, b in zip(runs["inline"], runs["waiting"]):
             assert np.array_equal(a.masks.dynamic, b.masks.dynamic)
         assert any(r.masks.dynamic.any() for r in runs["waiting"])
@@ -319,7 +319,7 @@ class TestPipelineWithBackgroundRefit:
                 time.sleep(0.1)
         finally:
             pipeline.close()
-        ages = [r.refit_age for r in results if r.refit_age is not None]
+        ages = [r.telemetry.get("refit_age") for r in results if r.telemetry.get("refit_age") is not None]
         assert ages[:2] == [0, 0]  # the stream's first decisions wait for their own refits, whatever the setting
         assert min(ages[2:]) >= 1 and max(ages) >= 2
 
@@ -337,10 +337,10 @@ class TestPipelineWithBackgroundRefit:
                 runs[name] = [pipeline.process(frame, 1_000 + i * 100_000_000,
                                                next_frame_at=None if spare is None else time.monotonic() + spare)
                               for i, frame in enumerate(frames)]
-        assert [r.refit_age for r in runs["spare"][1:]] == [0] * 5
+        assert [r.telemetry.get("refit_age") for r in runs["spare"][1:]] == [0] * 5
         assert all(r.stages["refit_wait"] > 0.03 for r in runs["spare"][3:])
         for name in ("due", "unknown"):
-            assert min(r.refit_age for r in runs[name][3:]) >= 1, name
+            assert min(r.telemetry.get("refit_age") for r in runs[name][3:]) >= 1, name
             assert all("refit_wait" not in r.stages for r in runs[name][3:]), name
 
     def test_auto_waits_at_most_a_share_of_the_time_to_the_next_frame_and_only_when_a_refit_fits(
@@ -348,7 +348,7 @@ class TestPipelineWithBackgroundRefit:
         """The next frame 0.1 s after each frame starts; the first refits are quick, the later ones take 0.5 s.
         Frames after a quick refit wait, but no longer than AUTO_WAIT_SHARE of what is left of that 0.1 s; once
         a refit took longer than that, no frame waits (the wait could not bring its own refit)."""
-        from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
+        from moseg_ros.frontend.refit_schedule import AUTO_WAIT_SHARE
 
         original = MotionEvidence.refit_tracks
         sleeps = iter([0.0] * 3 + [0.5] * 20)
@@ -365,7 +365,7 @@ class TestPipelineWithBackgroundRefit:
         waits = [r.stages.get("refit_wait", 0.0) for r in results]
         assert 0 < max(waits[2:5]) and max(waits[2:]) <= AUTO_WAIT_SHARE * 0.1 + 0.01, waits
         assert waits[-4:] == [0.0] * 4, waits  # the first slow refit is done by then
-        assert min(r.refit_age for r in results[-4:]) >= 1
+        assert min(r.telemetry.get("refit_age") for r in results[-4:]) >= 1
 
     def test_the_track_half_comes_before_the_dense_half(self, monkeypatch: pytest.MonkeyPatch) -> None:
         """The dense half of each refit takes 0.3 s more, frames come at 10 Hz and never wait but the stream's
@@ -392,9 +392,9 @@ class TestPipelineWithBackgroundRefit:
         finally:
             pipeline.close()
         assert expected[1].any() and np.array_equal(results[1].masks.dynamic, expected[1])
-        assert results[2].refit_age == 0 and results[2].masks.dynamic.any()
+        assert results[2].telemetry.get("refit_age") == 0 and results[2].masks.dynamic.any()
         assert not np.array_equal(results[2].masks.dynamic, expected[2])  # the dense mask a frame late
-        ages = [r.refit_age for r in results[4:]]
+        ages = [r.telemetry.get("refit_age") for r in results[4:]]
         assert 1 <= np.mean(ages) < 3, ages
 
     @pytest.mark.parametrize("dense_seconds, every, skips", [(0.3, 3, True), (0.3, 1, False), (0.0, 3, False)])
@@ -425,8 +425,8 @@ class TestPipelineWithBackgroundRefit:
             for i, frame in enumerate(textured_frames(20)):
                 results.append(pipeline.process(frame, 1_000 + i * 100_000_000))
                 time.sleep(0.1)
-            pipeline.method._worker.wait_idle(5)
-        assert [r.refit_age for r in results[1:3]] == [0, 0]
+            pipeline.method._refits.worker.wait_idle(5)
+        assert [r.telemetry.get("refit_age") for r in results[1:3]] == [0, 0]
         if skips:
             assert calls["tracks"] / 3 - 1 <= calls["dense"] < calls["tracks"] - 2, calls
         else:
@@ -437,7 +437,7 @@ class TestPipelineWithBackgroundRefit:
         whole refit never fits in the time left (three quarters of it), its track half does, and the worker (fitting
         back to back) is free again before the next frame, so every frame after the first decisions gets its own
         track flags (age 0), waiting no longer than AUTO_WAIT_SHARE of that 0.4 s."""
-        from moseg_ros.methods.moving_objects import AUTO_WAIT_SHARE
+        from moseg_ros.frontend.refit_schedule import AUTO_WAIT_SHARE
 
         original = MotionEvidence.refit_dense
 
@@ -452,7 +452,7 @@ class TestPipelineWithBackgroundRefit:
                 due = time.monotonic() + 0.4
                 results.append(pipeline.process(frame, 1_000 + i * 100_000_000, next_frame_at=due))
                 time.sleep(max(0.0, due - time.monotonic()))
-        assert [r.refit_age for r in results[4:]] == [0] * 8
+        assert [r.telemetry.get("refit_age") for r in results[4:]] == [0] * 8
         waits = [r.stages.get("refit_wait", 0.0) for r in results[4:]]
         assert max(waits) <= AUTO_WAIT_SHARE * 0.4 + 0.01, waits
 
@@ -472,7 +472,7 @@ class TestPipelineWithBackgroundRefit:
             kinds = []
             for i, frame in enumerate(textured_frames(12)):
                 kinds.append(pipeline.process(frame, 1_000 + i * 100_000_000))
-                pipeline.method._worker.wait_idle(5)
+                pipeline.method._refits.worker.wait_idle(5)
         finally:
             pipeline.close()
         failed = [r for r in kinds if r.kind is Status.FAILED]
@@ -499,7 +499,7 @@ class TestPipelineWithBackgroundRefit:
             statuses = []
             for i, frame in enumerate(textured_frames(8)):
                 statuses.append(pipeline.process(frame, 1_000 + i * 100_000_000).kind)
-                pipeline.method._worker.wait_idle(5)
+                pipeline.method._refits.worker.wait_idle(5)
         finally:
             gc.enable()
             pipeline.close()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
-from moseg_ros.io.bags import read_images
+from moseg_ros.io.bag_images import read_images
 from moseg_ros.synth import cli
 from moseg_ros.synth.scenarios import PRESETS, build_scene, check_scene, render_sequence
 from moseg_ros.synth.street import GT_TOPICS, SynthFrame, SynthScene, render_frames, write_bag

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from moseg_ros.io.bags import read_images
+from moseg_ros.io.bag_images import read_images
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.io.image import to_gray
 from moseg_ros.config import add_settings_arguments, pipeline_config
@@ -138,10 +138,10 @@ def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
     per_refit: dict[int, float] = {}
     for i, result in enumerate(results):
         if result.refit_stages:
-            fitted = i - result.refit_age
+            fitted = i - result.telemetry["refit_age"]
             per_refit[fitted] = max(per_refit.get(fitted, 0.0), sum(result.refit_stages.values()) * 1e3)
     refit_ms = np.array(list(per_refit.values()))
-    ages = np.array([r.refit_age for r in results if r.refit_age is not None])
+    ages = np.array([r.telemetry["refit_age"] for r in results if "refit_age" in r.telemetry])
     numbers: dict[str, Any] = {"refit": mode, "refits": int(refit_ms.size)}
     if refit_ms.size:
         numbers.update(_percentiles(refit_ms, "refit_ms_"))
@@ -153,8 +153,9 @@ def _refit_numbers(results: list[Any], mode: str) -> dict[str, Any]:
 def _fusion_numbers(results: list[Any]) -> dict[str, Any]:
     """With ``object_fusion``: how long each fused decision took (on the fusion's worker with a background
     refit) and how old the decisions the frames applied were; nothing without it."""
-    fusion_ms = np.array([r.fusion_seconds * 1e3 for r in results if r.fusion_seconds is not None])
-    ages = np.array([r.fusion_age for r in results if r.fusion_age is not None])
+    fusion_ms = np.array([r.telemetry["fusion_seconds"] * 1e3 for r in results
+                          if "fusion_seconds" in r.telemetry])
+    ages = np.array([r.telemetry["fusion_age"] for r in results if "fusion_age" in r.telemetry])
     numbers: dict[str, Any] = {"fusions": int(fusion_ms.size)} if fusion_ms.size else {}
     if fusion_ms.size:
         numbers.update(_percentiles(fusion_ms, "fusion_ms_"))

@@ -1,31 +1,12 @@
-"""Ground-contact test: does the foot of an object move with the ground plane?
+"""Ground-contact test (object_level's): does the foot of an object slide over the ground plane?
 
-The flow view cannot tell a car driving ahead of the camera from a static object farther away: both move
-radially from the focus of expansion, and only depth says which speed a static point there would have
-(DESIGN.md, "Why both views"). Objects on a street stand on the ground, and the ground is one plane, so its
-image motion between two frames is one homography H_g (Hartley & Zisserman §13.1) whatever the depth: the
-ground's flow at an object's foot is what the foot's flow would be if the object were static. Comparing the
-two gives the depth the flow view lacks, at the one place where the object's depth is known.
-
-Per frame pair:
-
-1. H_g is fitted by RANSAC to the background's flow vectors in the bottom part of the image (mostly road for a
-   forward-looking camera); a pair whose best plane explains too few of them has no ground.
-2. The foot of an object is its pixels with ``clearance`` background rows right below them, inside the image
-   (in each column, the lowest pixel of the object if ground is seen under it): an object cut by the image
-   border or standing behind another object has no foot there.
-3. The ground's flow at the foot is measured a few rows below it (``ground_rows``) and carried up to the foot
-   with H_g: u_g(x) = u(x + d) + (H_g(x) − x) − (H_g(x + d) − (x + d)), so the homography's fit error stays
-   out and only the small change of the plane's flow over d rows comes from it. The object's flow a few rows
-   above its foot (``probe_rows``: inside the object, away from the flow's smoothing across the edge) is
-   compared with it: error e = median |u_obj − u_g|, ground speed s = median |u_g| over the foot. Feet where
-   the ground moves more than ``max_speed_fraction`` of the image width are not compared (dense flow fails
-   on such displacements, right beside the camera).
-
-Over a window, an object's contact score is median(e) / (relative · median(s) + absolute) over the pairs in
-which it had a foot: above 1 the foot slides over the ground by more than flow noise (``absolute`` pixels) and
-more than a ``relative`` share of the ground's own motion (feet are not exactly on the plane), so the object
-moves. Settings were measured on the synthetic presets (moseg synth-eval) and are the same for every scene.
+The ground's image motion between two frames is one homography H_g whatever the depth, so the ground's flow at an
+object's foot is what the foot's flow would be if the object were static. Per frame pair H_g is fitted to the
+background's flow low in the image; each object's foot (pixels with ``clearance`` ground rows below them) is
+compared with the ground's flow carried up from ``ground_rows`` below,
+u_g(x) = u(x + d) + (H_g(x) − x) − (H_g(x + d) − (x + d)), as e = median |u_obj − u_g| against s = median |u_g|.
+An object's score over the window is median(e) / (relative · median(s) + absolute): above 1 it moves.
+docs/method.md has the derivation.
 """
 
 from __future__ import annotations

@@ -1,24 +1,15 @@
 """The flow view around each moving object: grow it over the pixels whose dense flow follows it, trim the
 background its convex hull swallowed.
 
-Linked moving tracks give an object's outline only where they are: a smooth body (a white dog, a camel's
-flank) holds few tracks, and the convex hull of tracks on legs and head covers the ground between them. The
-dense flow knows more, once told which motion is whose. For each drawn group of moving tracks (``group``),
-two affine flow models are fitted: the group's own, from its tracks' displacements, and the local
-background's, from the static tracks in the group's box widened by ``reach`` of its size (at least
-``link_px``)::
+For each drawn group of moving tracks two affine flow models are fitted, the group's own (its tracks) and the local
+background's (the static tracks in its box widened by ``reach``)::
 
     (u, v) ≈ (x, y, 1) · A        A: (3, 2), least squares, refitted once without vectors whose residual
                                   exceeds max(2 × the median, 0.5 px)
 
-A pixel of that box whose dense flow the object's model explains within ``join_fit_px`` and better than the
-background's by more than ``margin_px`` is the object's: such pixels connected to the group's tracks join the
-mask (without the first condition, DIS's flow smoothed across a car's outline, halfway between the two
-models, carried the region onto the road around it). A pixel leaves the mask only when the background's
-model explains its flow within ``trim_fit_px`` and fits it better than the object's by ``margin_px``: where
-DIS smears a fast car's flow neither model fits, and trimming there cut real movers on KITTI. Where the
-two models predict nearly the same flow (a car moving in the camera's epipolar plane, a group with too few
-static tracks around it) nothing changes.
+A box pixel the object's model explains within ``join_fit_px`` and better than the background's by ``margin_px``
+joins the mask when connected to the group's tracks; one the background's explains within ``trim_fit_px`` and
+better by ``margin_px`` leaves it. docs/method.md has why each condition is there.
 """
 
 from __future__ import annotations

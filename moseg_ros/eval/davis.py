@@ -1,24 +1,13 @@
 """Score the node's dynamic masks on DAVIS-2016 clips against each clip's annotated moving object.
 
-Layout: ``DIR/JPEGImages/480p/<clip>/*.jpg`` (or .png) and ``DIR/Annotations/480p/<clip>/*.png``, where a
-non-zero annotation pixel (a palette image's index, any colour channel; not its alpha) belongs to the moving
-object. Frames are taken in the natural order of their names (2.jpg before 10.jpg; hidden files left out) and
-decoded as the node decodes a compressed image (a truncated file is unreadable); an annotation is paired with the
-image of the same stem or, when no stems match, by order when there are as many as frames, else by the number in
-their names. For every clip that has annotations, the pipeline runs over the frames exactly as the node would
-(stamps at 24 Hz) and each annotated frame's dynamic mask is compared with its annotation, at the annotation's
-size when that differs from the frame's by a scale alone (else the frame is listed and not scored); a frame of
-another size than the clip's first is listed and not run (the pipeline would start over on it). The first frame the
-pipeline gets of each clip (no motion evidence yet) is not scored.
-
-Reported per clip: J (the DAVIS region measure: mean over frames of the IoU, 1 where both masks are empty),
-pixel precision and recall pooled over the clip's frames, and ms per frame (the first frame excluded). The
-mean line gives J averaged over clips, precision and recall pooled over every scored frame of every clip, and
-ms per frame averaged over clips. DAVIS annotates one primary object per clip, so other movers count as false
-positives. Clips without annotations, without frames or without a scored frame are listed and skipped, with the
-reason. A frame or annotation that cannot be read is skipped, as the node skips an undecodable image (the pipeline
-never sees such a frame, and it is not scored), and listed under its clip (``unreadable``). A figure with nothing
-to count is NaN, written as null in the JSON.
+Layout: ``DIR/JPEGImages/480p/<clip>/*.jpg`` (or .png) and ``DIR/Annotations/480p/<clip>/*.png`` (non-zero: the
+object). Frames in the natural order of their names, decoded as the node decodes a compressed image; annotations
+paired by stem, else by order or by the number in their names. The pipeline runs over each clip as the node would
+(stamps at 24 Hz); each annotated frame but the first is scored at the annotation's size. Per clip: J (mean IoU,
+1 where both masks are empty), pixel precision and recall pooled over its frames, ms per frame; the mean line
+averages J over clips and pools precision and recall. DAVIS annotates one object, so other movers count as false
+positives. Clips, frames and annotations that cannot be used are listed with the reason, never scored silently;
+a figure with nothing to count is NaN (null in the JSON).
 """
 
 from __future__ import annotations

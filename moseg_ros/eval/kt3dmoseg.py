@@ -3,7 +3,7 @@
 Protocol (Xu, Cheong, Li, CVPR 2018): each clip's sparse trajectories (``ySparse``, ``visibleSparse``) are
 clustered by motion; the error is the fraction of trajectories whose cluster is wrong under the best one-to-one
 matching of clusters to the labels (``GtLabel``); the number of motions is given (or estimated with
---estimate-k). The method is moseg_ros.core.segment.segment_trajectories with one fixed setting for every clip
+--estimate-k). The method is core.trajectory_segment.segment_trajectories with one fixed setting for every clip
 (TrajectoryConfig's defaults). DIR holds the clips' .mat files (any name; a file is a clip when it holds a
 ``Data`` struct, so SeqList.mat is passed over), directly or under DIR/Data/.
 
@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
-from moseg_ros.core import clustering, segment
+from moseg_ros.core import clustering
+from moseg_ros.core import trajectory_segment as segment
 from moseg_ros.eval.report import write_json
 
 VIEW_NAMES = {"f": "fundamental", "h": "homography", "a": "affine", "fundamental": "fundamental",

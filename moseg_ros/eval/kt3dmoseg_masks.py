@@ -1,23 +1,13 @@
 """Score the node's dynamic masks on real KITTI street frames at KT3DMoSeg's labelled points.
 
-For every clip that has its frames (``DIR/OriginalSequences/<clip>/*.png``, or .jpg; each file is the trajectory
-frame of the number in its name, ``%06d.png`` being frame number - 1 (from 0 when a name holds 0), or in the
-natural order of names without numbers), the pipeline runs over the frames exactly as the node would, and each
-labelled trajectory point visible in a frame is looked up in that frame's dynamic mask (``mask[round(y),
-round(x)]``). Label 1 is the static background, labels >= 2 are independently moving objects. Reported per clip:
-recall on moving points, the share of static points flagged (an upper bound: label 1 includes a few unannotated
-movers), object-frames detected and ms per frame. An object-frame is one moving object (label >= 2) in one frame
-where at least one of its labelled points is visible; it is detected when at least half of those points are in the
-mask. How the published instances follow the moving objects at their points (eval/identities.py): id switches,
-object-frames whose instance holds another moving object too, and object-frames split over two or more instances.
-Over all clips: the per-clip means, and recall, static points flagged, object-frames detected and the instances'
-counts pooled over every scored point-frame or object-frame. The first frame the pipeline gets of each clip (no
-motion evidence yet) is not scored. Clips without frames are listed and skipped, with the reason. A frame that
-cannot be read (decoded as the node decodes a compressed image: a truncated file is unreadable) is skipped, as the
-node skips an undecodable image (the pipeline never sees it, and its points are not scored), and listed under its
-clip (``unreadable``); so is a frame that does not hold the clip's trajectories (``mismatched``: smaller than the
-points reach, or more than ``OVERSIZE`` times their extent both ways: resized frames, or not of the clip's size),
-and a trajectory frame without a file (``missing``). A figure with nothing to count is NaN, written as null in the JSON.
+For every clip with frames (``DIR/OriginalSequences/<clip>/*.png`` or .jpg, matched to the trajectory frames by
+the number in their names, else by natural order) the pipeline runs as the node would, and each labelled point
+visible in a frame is looked up in its dynamic mask. Label 1 is the static background, >= 2 the movers. Per clip
+and pooled: recall on moving points, static points flagged, object-frames detected (half of a mover's visible
+points masked), ms per frame, and how the published instances follow the movers (eval/identities.py: id
+switches, instances holding two movers, movers split over two). The first frame of each clip is not scored.
+Clips without frames, unreadable frames, frames that do not hold the clip's trajectories (``mismatched``) and
+missing ones are listed with the reason; a figure with nothing to count is NaN (null in the JSON).
 """
 
 from __future__ import annotations

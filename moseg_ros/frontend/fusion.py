@@ -24,6 +24,7 @@ import numpy as np
 
 from moseg_ros.core.segment import SegmentConfig, segment_objects
 from moseg_ros.frontend.window import Window, WindowFrame
+from moseg_ros.refit import BackgroundRefit, raise_worker_error
 
 # The object-level models' noise floors at the front-end's dense size (640 px): SegmentConfig's (1 px² of Sampson
 # distance, 0.25 px² of flow error) are the whole residual of a small far mover there, and the clustering put most
@@ -111,3 +112,55 @@ class ObjectFusion:
         if window is None:
             return candidates
         return candidates[~np.isin(candidates, self.taken_back(window, candidates, standing))]
+
+
+class FusionSchedule:
+    """The fused decision of every frame, inline or on a worker of its own (resting so that it fits
+    ``FUSION_DUTY`` of the time at most); a frame applies the newest decision done on the current window, by region
+    id, and a new window (a new stream, a frame without a flow back) voids the decisions on the last."""
+
+    def __init__(self, window_length: int, background: bool, nice: int = 0) -> None:
+        self.fusion = ObjectFusion(window_length)
+        self.worker = (BackgroundRefit(self.fusion.fuse, name="moseg-fusion", nice=nice, duty=FUSION_DUTY)
+                       if background else None)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the window and every decision (a new stream)."""
+        self.fusion.reset()
+        if self.worker is not None:
+            self.worker.clear()
+        self._windows = 0  # counts the windows: a decision on an earlier one's ids is void
+        self._applied: FusionDecision | None = None
+
+    def restart_window(self) -> None:
+        """Empty the window, which must hold consecutive frames of the regions (a frame decided otherwise)."""
+        self.fusion.reset()
+
+    def close(self) -> None:
+        """Stop the worker, if any."""
+        if self.worker is not None:
+            self.worker.stop()
+
+    def decision(self, index: int, frame: WindowFrame, candidates: np.ndarray,
+                 standing: np.ndarray) -> tuple[FusionDecision | None, bool]:
+        """Push frame ``index`` (``frame``, its ``candidates`` regions and the ``standing`` ones the depth tests
+        flagged) and return the decision it applies (its own inline, the newest done on the worker; None before the
+        first on this window) and whether this frame is the first to apply it."""
+        window = self.fusion.push(frame)
+        if window is None:
+            self._windows += 1
+            return None, False
+        job = FusionJob(index, self._windows, window, candidates, standing)
+        if self.worker is None:
+            fusion = self.fusion.fuse(job)
+        else:
+            raise_worker_error(self.worker)
+            self.worker.submit(job)
+            fusion = self.worker.latest()
+            if fusion is not None and fusion.windows != self._windows:
+                fusion = None
+        if fusion is None:
+            return None, False
+        new, self._applied = fusion is not self._applied, fusion
+        return fusion, new

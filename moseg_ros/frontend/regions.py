@@ -27,13 +27,8 @@ from moseg_ros.timing import Stages
 
 
 class RegionStage:
-    """Stage 3, regions: the moving evidence of one frame grouped into regions whose ids last from frame to frame.
-
-    ``apply`` draws the tracks a refit flagged where they are now (hulls of linked groups), grows and trims them by
-    the flow view around each group, adds the refit's dense mask carried along the flow to this frame, remembers
-    evidence for ``memory_frames``, lets lasting regions coast on their tracks where their evidence drops out, and
-    labels the result (InstanceTracker). Runs on the frame path; it reads the frame only from its ``Observation``.
-    """
+    """Stage 3, regions: the moving evidence of one frame grouped into regions whose ids last (the module's
+    docstring); runs on the frame path and reads the frame only from its ``Observation``."""
 
     def __init__(self, config: MotionFrontEndConfig) -> None:
         self.config = config

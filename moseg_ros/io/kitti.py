@@ -2,19 +2,11 @@
 ground-truth poses when there is a pose file).
 
 Layouts (detected from SRC):
-  raw        SRC/image_0X/data/*.png, SRC/image_0X/timestamps.txt (UTC date-times),
-             calib_cam_to_cam.txt in SRC or its parent (P_rect_0X/S_rect_0X, or K_0X/D_0X/S_0X when the
-             images are the unrectified size)
+  raw        SRC/image_0X/data/*.png, SRC/image_0X/timestamps.txt, calib_cam_to_cam.txt in SRC or its parent
   odometry   SRC/image_X/*.png, SRC/times.txt (seconds from the start), SRC/calib.txt (PX)
-Grey PNGs are written as mono8, colour PNGs as rgb8, each with a camera_info at the same stamp.
-
-Ground-truth poses (--poses FILE, or found beside the sequence: the odometry layout's
-dataset/poses/XX.txt for dataset/sequences/XX, then SRC/../poses/XX.txt, SRC/poses/XX.txt, SRC/poses.txt,
-SRC/poses*.txt) go on /gt/pose as geometry_msgs/PoseStamped (frame_id "world", camera-to-world, at the image's stamp).
-Line i of the file is frame i (the frame number of the PNG name, also when the folder holds a subset
-that does not start at 0); a line is 12 numbers, the row-major 3x4 [R|t] of KITTI odometry's ground
-truth (left grey camera 0), or 13 with a leading timestamp, which is ignored. The poses are written as
-the file gives them: with --camera 1-3 they are still camera 0's.
+Grey PNGs are written as mono8, colour ones as rgb8, each with a camera_info at the same stamp. Poses (--poses
+FILE, or found beside the sequence: dataset/poses/XX.txt, SRC/../poses/XX.txt, SRC/poses*.txt) go on /gt/pose
+(camera-to-world, "world"): line i is frame i, 12 numbers (row-major 3x4 [R|t]) or 13 with a leading timestamp.
 """
 
 from __future__ import annotations
@@ -29,7 +21,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from moseg_ros.io.bags import BagWriter
+from moseg_ros.io.bag_writer import BagWriter
 
 __all__ = ["KittiSequence", "find_sequence", "parse_calib", "parse_raw_timestamps", "find_poses", "parse_poses",
            "kitti_to_bag", "add_arguments", "run"]

@@ -63,10 +63,10 @@ class Decision:
     dynamic_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     status: Status = Status.OK
     stages: dict[str, float] = field(default_factory=dict)  # seconds per stage of this frame, when measured
-    refit_age: int | None = None  # frames between this frame and the refit whose flags it applies (None: no refit)
     refit_stages: dict[str, float] = field(default_factory=dict)  # that refit's stages, on its first frame only
-    fusion_age: int | None = None  # frames between this frame and the fused decision it applies (None: none)
-    fusion_seconds: float | None = None  # how long that decision took, on the first frame that applies it
+    # What the method's background work says of this frame, published by the node as it is (each key's last, max
+    # and mean over the recent frames): how many frames old the decisions it applies are, how long they took.
+    telemetry: dict[str, float] = field(default_factory=dict)
 
 
 class Method(Protocol):

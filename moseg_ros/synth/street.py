@@ -1,22 +1,13 @@
 """Synthetic street scenes: a scene model and a vectorized ray-casting renderer with exact ground truth.
 
-Conventions. The world frame is a right-handed frame with x right, y DOWN and z along the street; the ground
-is the plane y = 0 and the camera drives near the line x = 0 at height h (so its centre has y = -h). Cameras
-use the OpenCV convention (x right, y down, z forward); a pose T (4, 4) maps camera to world coordinates,
-X_w = R X_c + c. The camera and the boxes only yaw about the vertical (a level camera, boxes on flat ground):
-a yaw ψ maps the local z axis to the world direction (sin ψ, 0, cos ψ); boxes stand on the ground (centre
-y = -height / 2) with their length along their local z.
+World frame: x right, y DOWN, z along the street; the ground is y = 0, the camera drives near x = 0 at height h.
+Cameras follow OpenCV (x right, y down, z forward); a pose T (4, 4) maps camera to world, X_w = R X_c + c. Camera
+and boxes only yaw about the vertical; boxes stand on the ground with their length along their local z.
 
-Rendering. Every pixel casts the ray X(s) = c + s R K⁻¹ (u, v, 1)ᵀ, so the ray parameter s is the pixel's
-depth (camera z). The ground and the two facade planes are intersected in closed form, each box with the slab
-test restricted to its projected bounding rectangle, and the nearest hit wins (a z-buffer). With yaw only, a
-ray's vertical component depends on its image row and its horizontal ones on its column, so these
-intersections cost one value per row or column and only their combinations are full images. Every surface
-carries a texture fixed to it: ground and facades keyed on world coordinates, a box on its own face
-coordinates, so the texture moves with the box. Textures are tileable images packed with their mipmaps into
-one atlas; a pixel's texture coordinate and mip level (log2 of its footprint, depth / (f texel √|cos θ|))
-turn into two ``cv2.remap`` look-ups blended trilinearly, which keeps distant texture from aliasing, so that
-a static world point keeps its colour from frame to frame up to the change of detail with distance.
+Every pixel casts X(s) = c + s R K⁻¹ (u, v, 1)ᵀ (s: the pixel's depth); the ground and facades are intersected in
+closed form, each box by the slab test within its projected rectangle, the nearest hit wins. Every surface
+carries a texture fixed to it, sampled trilinearly from a mipmapped atlas (two ``cv2.remap`` look-ups), so a
+static world point keeps its colour from frame to frame. docs/method.md has the details.
 """
 
 from __future__ import annotations
@@ -890,7 +881,7 @@ def render_frames(scene: SynthScene) -> Iterator[SynthFrame]:
 def write_frames(frames: Iterable[SynthFrame], K: np.ndarray, width: int, height: int, path: str | Path, *,
                  start_ns: int | None = None) -> dict[str, int]:
     """Write frames to a rosbag2 MCAP folder at ``path`` (see :func:`write_bag`); returns messages per topic."""
-    from moseg_ros.io.bags import BagWriter
+    from moseg_ros.io.bag_writer import BagWriter
 
     offset = None
     with BagWriter(path, storage="mcap") as writer:

@@ -14,7 +14,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from moseg_ros.io.bags import BagDamagedError, BagWriter, Calibration, image_camera, is_bag, read_images
+from moseg_ros.io.bag_images import Calibration, image_camera, read_images
+from moseg_ros.io.bag_writer import BagWriter
+from moseg_ros.io.bags import BagDamagedError, is_bag
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.pipeline import Pipeline, PipelineConfig
 from moseg_ros.timing import Pacer

@@ -22,7 +22,8 @@ import cv2
 import numpy as np
 
 from moseg_ros.eval.masks import GT_DYNAMIC_TOPIC, masks_by_stamp, score_bags
-from moseg_ros.io.bags import list_topics, read_images
+from moseg_ros.io.bag_images import read_images
+from moseg_ros.io.bags import list_topics
 from moseg_ros.methods import DEFAULT_METHOD, METHODS
 from moseg_ros.config import all_settings
 from moseg_ros.synth.scenarios import build_scene, check_scene

@@ -18,7 +18,8 @@ from typing import Iterator
 
 import numpy as np
 
-from moseg_ros.io.bags import image_camera, is_bag, read_images
+from moseg_ros.io.bag_images import image_camera, read_images
+from moseg_ros.io.bags import is_bag
 from moseg_ros.io.files import image_files, read_frame
 from moseg_ros.io.frames import decode_frame
 from moseg_ros.config import add_settings_arguments, pipeline_config

@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from moseg_ros.io.bags import (CAMERA_INFO_TYPE, BagDamagedError, BagWriter, camera_info_topic, iter_messages,
-                               list_topics, pick_image_topic)
+from moseg_ros.io.bag_images import camera_info_topic, pick_image_topic
+from moseg_ros.io.bag_writer import BagWriter
+from moseg_ros.io.bags import CAMERA_INFO_TYPE, BagDamagedError, iter_messages, list_topics
 from moseg_ros.timing import sleep_until
 from moseg_ros.tools.dds import use_loopback
 
