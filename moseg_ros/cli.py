@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "process": ("moseg_ros.tools.process", "run the pipeline in-process over every frame of a bag (or many, on Ray)"),
     "replay": ("moseg_ros.tools.replay", "replay a bag to a running segmenter and record its outputs"),
     "demo": ("moseg_ros.tools.demo", "the demo: synthetic bag -> real node over DDS -> scored masks"),
+    "params": ("moseg_ros.tools.params", "the node's parameter file, every setting at its default"),
     "fingerprint": ("moseg_ros.tools.fingerprint", "an md5 of every frame's masks: show that a change kept them"),
     "synth-eval": ("moseg_ros.synth.evaluate", "per-object decisions of the pipeline on the synthetic presets"),
 }

@@ -8,12 +8,18 @@ check of ``config/segmenter.yaml``, the README's parameter table (checked by a t
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass, replace
+import dataclasses
+import functools
+import importlib
+import sys
+import textwrap
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import yaml
 
-from moseg_ros.core.baseline import BaselineConfig
 from moseg_ros.frontend.flow import DIS_PRESETS
 from moseg_ros.methods import DEFAULT_METHOD, METHODS, method_class
 from moseg_ros.params import (NodeSettings, Setting, SettingsError, apply_overrides, check_all, read_parameter_file,
@@ -38,38 +44,9 @@ class PipelineConfig:
     working_pixels: int = setting(128_000, "frames are processed at no more than this many pixels (dense flow; a "
                                   "4:3 camera at working_width would hold 2.5 times a KITTI frame's; 0: no "
                                   "limit)", low=0, high=16_777_216)
-    track_width: int = setting(1280, "moving_objects: KLT tracks run at this width (pixels)", low=64, high=4096)
-    max_tracks: int = setting(2000, "moving_objects: points tracked per frame", low=50, high=20000)
     flow_preset: str = setting("auto", "DIS optical flow preset (auto: fast for epipolar_baseline, balanced for "
                                "moving_objects, medium for object_level)",
                                choices=FLOW_PRESETS)
-    residual_threshold_px: float = setting(1.5, "epipolar_baseline: epipolar residual above which a pixel moves "
-                                           "(working px)", low=0.1, high=50.0)
-    min_region_area: int = setting(60, "smallest moving region kept (working pixels)", low=1, high=100000)
-    min_persistence: int = setting(2, "epipolar_baseline: frames a moving region must persist before it is "
-                                   "flagged", low=1, high=100)
-    instance_min_fraction: float = setting(0.4, "with instances: share of an instance that must move to flag it "
-                                           "(moving_objects: of its pixels in the regions the method would publish "
-                                           "without instances, margin included; epipolar_baseline: of its reliable "
-                                           "pixels)", low=0.01, high=1.0)
-    instance_hold_fraction: float = setting(0.1, "moving_objects with instances: an instance flagged the frame "
-                                            "before stays flagged while this share of it lies in those regions "
-                                            "(hysteresis, each instance followed by its overlap: a car passing the "
-                                            "image's corner keeps its decision as its evidence drops out; at or "
-                                            "above instance_min_fraction: none)", low=0.0, high=1.0)
-    instance_unknown_regions: bool = setting(True, "moving_objects with instances: also publish the method's own "
-                                             "regions that lie mostly outside every instance (movers the instance "
-                                             "source does not know), with ids from 2**30 up")
-    window_length: int = setting(8, "frames in the sliding window (moving_objects, object_level)", low=3, high=60)
-    refit_interval: int = setting(4, "object_level: frames between refits of the motion models", low=1, high=60)
-    ground_contact: bool = setting(True, "object_level: objects standing on the ground plane are moving when "
-                                   "their foot slides over it")
-    object_fusion: bool = setting(True, "moving_objects without instances: the paper's fused object-level decision "
-                                  "on the method's own regions (epipolar and quadratic flow models per region over "
-                                  "the window, ORK affinities, co-regularized clustering): a region moves when it "
-                                  "lies outside the background's cluster or the depth tests flagged it; with a "
-                                  "background refit on a worker of its own, whose newest decision a frame applies "
-                                  "(frontend/fusion.py). Off: every region the method finds moves")
     mask_margin_px: int = setting(6, "dilation of published masks (output pixels)", low=0, high=100)
     instance_model: str = setting("", "path of a TorchScript instance-segmentation model run on every frame "
                                   "(empty: none; see frontend/torch_instances.py); upstream instances win")
@@ -104,6 +81,33 @@ class PipelineConfig:
                                   "the frame path and the refit each keep a core of their own; otherwise OpenCV's "
                                   "own choice, the CPUs the process may run on)", low=0, high=1024)
 
+    # Every method's own settings (its module's SETTINGS: its stages' settings), by method name, in the order of
+    # METHODS; the defaults of those not given. Read them with ``settings`` / ``settings_of``.
+    methods: tuple[tuple[str, Any], ...] = ()
+
+    def __post_init__(self) -> None:
+        given = dict(self.methods)
+        unknown = sorted(set(given) - set(METHODS))
+        if unknown:
+            raise ValueError(f"settings of unknown methods {unknown}; methods: {sorted(METHODS)}")
+        object.__setattr__(self, "methods", tuple((name, given[name] if name in given else settings_class(name)())
+                                                   for name in METHODS))
+
+    @classmethod
+    def of(cls, **values: Any) -> PipelineConfig:
+        """A config from names: the pipeline's settings by name, a method's by its bare name for every method that
+        has it (``PipelineConfig.of(refit="inline", object_fusion=False)``); see ``config_from_values``."""
+        return config_from_values(values)
+
+    @property
+    def settings(self) -> Any:
+        """The chosen method's own settings."""
+        return self.settings_of(self.method)
+
+    def settings_of(self, name: str) -> Any:
+        """Method ``name``'s own settings (an instance of its module's SETTINGS)."""
+        return dict(self.methods)[name]
+
     def refit_mode(self, live: bool) -> str:
         """background or inline: what refit stands for in a live stream (the node) or offline (tools)."""
         if self.refit != "auto":
@@ -125,18 +129,81 @@ class PipelineConfig:
             return self.flow_preset
         return method_class(self.method).flow_preset
 
-    def baseline(self) -> BaselineConfig:
-        """The epipolar baseline's settings."""
-        return replace(BaselineConfig(), residual_threshold_px=self.residual_threshold_px)
-
     def validate(self) -> None:
         """Raise ValueError naming the first setting of the wrong type or out of range."""
         check_all(self)
+        for name, own in self.methods:
+            if type(own) is not settings_class(name):
+                raise ValueError(f"{name}'s settings must be a {settings_class(name).__name__}, got {own!r}")
+            try:
+                check_all(own)
+            except ValueError as error:
+                raise ValueError(f"{name}.{error}") from None
+
+
+def settings_class(name: str) -> type:
+    """Method ``name``'s settings dataclass (its module's ``SETTINGS``: its stages' settings)."""
+    return importlib.import_module(METHODS[name]).SETTINGS
+
+
+def method_settings() -> dict[str, list[Setting]]:
+    """Each method's own settings, by method name."""
+    return {name: settings_of(settings_class(name)) for name in METHODS}
 
 
 def all_settings() -> list[Setting]:
-    """Every setting of the node: its own, then the pipeline's."""
-    return settings_of(NodeSettings) + settings_of(PipelineConfig)
+    """Every setting of the node: its own, the pipeline's, then each method's as ``method.name`` (the node's
+    parameters; nested by method in its YAML)."""
+    nested = [dataclasses.replace(entry, name=f"{method}.{entry.name}")
+              for method, entries in method_settings().items() for entry in entries]
+    return settings_of(NodeSettings) + settings_of(PipelineConfig) + nested
+
+
+def pipeline_settings() -> list[Setting]:
+    """The settings a PipelineConfig takes: the pipeline's and each method's as ``method.name``."""
+    node = {entry.name for entry in settings_of(NodeSettings)}
+    return [entry for entry in all_settings() if entry.name not in node]
+
+
+def bare_names() -> dict[str, list[str]]:
+    """Each method setting's bare name (as the parameters were named before they were nested by method) -> its
+    nested names: ``window_length`` -> ``moving_objects.window_length``, ``object_level.window_length``."""
+    names: dict[str, list[str]] = {}
+    for method, entries in method_settings().items():
+        for entry in entries:
+            names.setdefault(entry.name, []).append(f"{method}.{entry.name}")
+    return names
+
+
+def nested_values(values: dict[str, Any], warn: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """``values`` by name with every bare method-setting name replaced by its nested names (a nested name given
+    too wins); ``warn`` is told of each bare name (deprecated in parameter files and ``--set``)."""
+    bare = bare_names()
+    out: dict[str, Any] = {}
+    for name, value in values.items():
+        if name in bare:
+            if warn is not None:
+                warn(f"parameter {name!r} is deprecated: name it {' / '.join(bare[name])}")
+            out.update({nested: value for nested in bare[name]})
+    out.update({name: value for name, value in values.items() if name not in bare})
+    return out
+
+
+def config_from_values(values: dict[str, Any], warn: Callable[[str], None] | None = None) -> PipelineConfig:
+    """The PipelineConfig of ``values`` by name (``pipeline_settings``' names; bare method-setting names are
+    taken for every method that has them, ``nested_values``); ValueError names an unknown one."""
+    values = nested_values(values, warn)
+    unknown = sorted(set(values) - {entry.name for entry in pipeline_settings()})
+    if unknown:
+        raise ValueError(f"unknown parameters {unknown}")
+    shell = {name: value for name, value in values.items() if "." not in name}
+    own: dict[str, dict[str, Any]] = {}
+    for name, value in values.items():
+        if "." in name:
+            method, _, field_name = name.partition(".")
+            own.setdefault(method, {})[field_name] = value
+    methods = tuple((method, settings_class(method)(**fields)) for method, fields in own.items())
+    return PipelineConfig(**shell, methods=methods)
 
 
 def add_settings_arguments(parser: argparse.ArgumentParser, method: bool = True) -> None:
@@ -176,21 +243,62 @@ def pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     """
     try:
         return _pipeline_config(args)
-    except (ValueError, OSError, yaml.YAMLError) as error:
+    except (ValueError, TypeError, OSError, yaml.YAMLError) as error:
         raise SettingsError(str(error)) from None
 
 
 def _pipeline_config(args: argparse.Namespace) -> PipelineConfig:
-    schema = settings_of(PipelineConfig)
-    names = {entry.name for entry in schema}
+    warn = functools.partial(print, "moseg: warning:", file=sys.stderr)
     values = read_parameter_file(args.params) if getattr(args, "params", None) else {}
-    unknown = set(values) - names - {entry.name for entry in settings_of(NodeSettings)}
-    if unknown:
-        raise ValueError(f"{args.params}: unknown parameters {sorted(unknown)}")
-    values = {name: value for name, value in values.items() if name in names}
+    node = {entry.name for entry in settings_of(NodeSettings)}
+    values = nested_values({name: value for name, value in values.items() if name not in node}, warn)
     if getattr(args, "method", None):
         values["method"] = args.method
-    values = apply_overrides(values, getattr(args, "set", []), schema)
-    config = PipelineConfig(**values)
+    schema = pipeline_settings()
+    first = {}
+    for entry in schema:
+        first.setdefault(entry.name.partition(".")[2] or entry.name, entry)
+    aliases = [dataclasses.replace(entry, name=name) for name, entry in first.items() if name in bare_names()]
+    values.update(nested_values(apply_overrides({}, getattr(args, "set", []), schema + aliases), warn))
+    config = config_from_values(values)
     config.validate()
     return config
+
+
+def parameters_yaml() -> str:
+    """The node's parameter file with every setting at its default, nested by method, each under its description
+    (``config/segmenter.yaml`` is this text: ``moseg params``)."""
+    lines = ["# Parameters of the `segmenter` node, each at its default (`moseg params`: generated from the",
+             "# settings' declarations). Use: ros2 run moseg_ros segmenter --ros-args --params-file THIS_FILE",
+             "/**:", "  ros__parameters:"]
+    method = None
+    for entry in all_settings():
+        owner, _, name = entry.name.rpartition(".")
+        indent = "    " + ("  " if owner else "")
+        if owner and owner != method:
+            lines.append(f"    {owner}:")
+            method = owner
+        lines += [indent + "# " + line for line in textwrap.wrap(_described(entry), 116 - len(indent))]
+        lines.append(f"{indent}{name}: {_yaml_value(entry.default)}")
+    return "\n".join(lines) + "\n"
+
+
+def _described(entry: Setting) -> str:
+    """A setting's description with its choices or range."""
+    if entry.choices:
+        return f"{entry.description} ({' | '.join(entry.choices)})"
+    if entry.low is not None:
+        return f"{entry.description} ({_bound(entry.low)}..{_bound(entry.high)})"
+    return entry.description
+
+
+def _bound(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f"{value:g}"
+
+
+def _yaml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return value or '""'
+    return repr(value)

@@ -34,9 +34,9 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from moseg_ros.io.frames import camera_matrix, decode_frame, decode_instances
 from moseg_ros.io.image import declared_size, image_from_array
 from moseg_ros.diagnostics import NodeStatistics
-from moseg_ros.config import all_settings
-from moseg_ros.params import Setting, settings_of
-from moseg_ros.pipeline import FrameResult, Pipeline, PipelineConfig
+from moseg_ros.config import all_settings, bare_names, config_from_values, nested_values, pipeline_settings
+from moseg_ros.params import Setting
+from moseg_ros.pipeline import FrameResult, Pipeline
 from moseg_ros.render import Masks, debug_overlay
 
 
@@ -59,7 +59,11 @@ def _describe(entry: Setting) -> ParameterDescriptor:
 SCHEMA = {entry.name: entry for entry in all_settings()}
 PARAMETERS: dict[str, tuple[Any, ParameterDescriptor]] = {
     name: (entry.default, _describe(entry)) for name, entry in SCHEMA.items()}
-PIPELINE_NAMES = tuple(entry.name for entry in settings_of(PipelineConfig))
+PIPELINE_NAMES = tuple(entry.name for entry in pipeline_settings())
+# The method settings' bare names, read for one release after they were nested by method (``moving_objects.*``).
+DEPRECATED = {name: ParameterDescriptor(description=f"deprecated: name it {' / '.join(nested)}", read_only=True,
+                                        dynamic_typing=True)
+              for name, nested in bare_names().items()}
 
 
 def checked_settings(settings: dict[str, Any]) -> dict[str, Any]:
@@ -114,8 +118,15 @@ class SegmenterNode(Node):
         super().__init__("segmenter", **kwargs)
         for name, (default, descriptor) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor)
-        self.settings = checked_settings({name: self.get_parameter(name).value for name in PARAMETERS})
-        self.pipeline = Pipeline(PipelineConfig(**{name: self.settings[name] for name in PIPELINE_NAMES}), live=True)
+        for name, descriptor in DEPRECATED.items():
+            self.declare_parameter(name, None, descriptor)
+        values = {name: self.get_parameter(name).value for name in PARAMETERS}
+        bare = {name: self.get_parameter(name).value for name in DEPRECATED}
+        values.update(nested_values({name: value for name, value in bare.items() if value is not None},
+                                    self.get_logger().warning))
+        self.settings = checked_settings(values)
+        self.pipeline = Pipeline(config_from_values({name: self.settings[name] for name in PIPELINE_NAMES}),
+                                 live=True)
 
         self.statistics = NodeStatistics()
         self.counters = self.statistics.counters

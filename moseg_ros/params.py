@@ -108,12 +108,24 @@ class NodeSettings:
 
 
 def read_parameter_file(path: Path) -> dict[str, Any]:
-    """The ``ros__parameters`` of a node's YAML file (``segmenter:`` or ``/**:`` as the top key)."""
+    """The ``ros__parameters`` of a node's YAML file (``segmenter:`` or ``/**:`` as the top key), nested ones by
+    their dotted names (``moving_objects: {window_length: 8}`` -> ``moving_objects.window_length``)."""
     data = yaml.safe_load(Path(path).read_text()) or {}
     for node in data.values():
         if isinstance(node, dict) and isinstance(node.get("ros__parameters"), dict):
-            return dict(node["ros__parameters"])
+            return flattened(node["ros__parameters"])
     raise ValueError(f"{path}: no `<node>: ros__parameters:` section")
+
+
+def flattened(parameters: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested parameters as ROS names them: ``{"a": {"b": 1}}`` -> ``{"a.b": 1}``."""
+    out: dict[str, Any] = {}
+    for name, value in parameters.items():
+        if isinstance(value, dict):
+            out.update(flattened(value, f"{prefix}{name}."))
+        else:
+            out[f"{prefix}{name}"] = value
+    return out
 
 
 def apply_overrides(values: dict[str, Any], overrides: Iterable[str], schema: list[Setting]) -> dict[str, Any]:

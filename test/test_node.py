@@ -272,6 +272,20 @@ def test_invalid_parameter_is_refused_with_a_clear_message(ros_domain, tmp_path)
     process = start_segmenter(ros_domain, log, params=["working_width:=10"])
     assert process.wait(timeout=20) == 2
     assert "working_width" in log.read_text()
+    process = start_segmenter(ros_domain, log, params=["moving_objects.track_width:=10"])
+    assert process.wait(timeout=20) == 2
+    assert "moving_objects.track_width" in log.read_text()
+
+
+def test_a_method_settings_bare_name_still_works_with_a_deprecation_warning(ros_domain, tmp_path):
+    """A bare name of before (``min_persistence``) reaches the method's nested setting: 0 is out of its range, so
+    the node stops naming the nested parameter, after warning that the bare name is deprecated."""
+    log = tmp_path / "log"
+    process = start_segmenter(ros_domain, log, params=["min_persistence:=0"])
+    assert process.wait(timeout=20) == 2
+    text = log.read_text()
+    assert "'min_persistence' is deprecated: name it epipolar_baseline.min_persistence" in text
+    assert "epipolar_baseline.min_persistence 0 must be within 1..100" in text
 
 
 def test_compressed_input(ros_domain, tmp_path, monkeypatch):

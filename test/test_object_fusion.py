@@ -112,7 +112,7 @@ class TestObjectFusion:
 
 def test_inline_every_frame_applies_its_own_decision():
     seq = render_sequence("ahead", seed=0, n_frames=6, width=WIDTH, height=HEIGHT)
-    with Pipeline(PipelineConfig(object_fusion=True, refit="inline")) as pipeline:
+    with Pipeline(PipelineConfig.of(object_fusion=True, refit="inline")) as pipeline:
         results = [pipeline.process(frame.rgb, t * 100_000_000) for t, frame in enumerate(seq.frames)]
     decided = [r.telemetry for r in results if "fusion_age" in r.telemetry]
     assert decided and all(t["fusion_age"] == 0 and "fusion_seconds" in t for t in decided)
@@ -132,7 +132,7 @@ def test_a_slow_fused_decision_on_its_worker_never_holds_a_frame_back(monkeypatc
     monkeypatch.setattr(MotionFrontEnd, "depth", lambda self: np.zeros(self.observer._grays[-1].shape, dtype=bool))
     seq = render_sequence("ahead", seed=0, n_frames=16, width=WIDTH, height=HEIGHT)
     results = []
-    with Pipeline(PipelineConfig(object_fusion=True, refit="background")) as pipeline:
+    with Pipeline(PipelineConfig.of(object_fusion=True, refit="background")) as pipeline:
         for t, frame in enumerate(seq.frames):
             results.append(pipeline.process(frame.rgb, t * 100_000_000))
             time.sleep(0.05)
@@ -157,7 +157,7 @@ def test_a_fused_decision_that_raises_on_its_worker_gives_a_failed_frame_then_re
 
     monkeypatch.setattr(ObjectFusion, "taken_back", flaky)
     seq = render_sequence("ahead", seed=0, n_frames=14, width=WIDTH, height=HEIGHT)
-    with Pipeline(PipelineConfig(object_fusion=True, refit="background")) as pipeline:
+    with Pipeline(PipelineConfig.of(object_fusion=True, refit="background")) as pipeline:
         results = []
         for t, frame in enumerate(seq.frames):
             results.append(pipeline.process(frame.rgb, t * 100_000_000))
@@ -170,7 +170,7 @@ def test_a_fused_decision_that_raises_on_its_worker_gives_a_failed_frame_then_re
 def test_the_pipeline_runs_the_fused_decision_on_its_own_regions():
     seq = render_sequence("ahead", seed=0, n_frames=12, width=WIDTH, height=HEIGHT)
     flagged = []
-    with Pipeline(PipelineConfig(object_fusion=True)) as pipeline:
+    with Pipeline(PipelineConfig.of(object_fusion=True)) as pipeline:
         fusion = pipeline.method._fusion.fusion
         assert isinstance(fusion, ObjectFusion)
         for t, frame in enumerate(seq.frames):

@@ -148,7 +148,7 @@ def test_object_level_without_instances_falls_back_to_the_baseline():
 
 
 def test_object_level_survives_a_frame_without_instances():
-    pipeline = Pipeline(PipelineConfig(method="object_level", refit_interval=2))
+    pipeline = Pipeline(PipelineConfig.of(method="object_level", refit_interval=2))
     statuses = []
     for i, frame in enumerate(textured_frames(10)):
         instances = None if i == 5 else np.where(block_truth(i), 7, 0).astype(np.int32)

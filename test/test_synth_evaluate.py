@@ -76,7 +76,7 @@ def test_upstream_instances_hold_the_crossing_car_as_its_evidence_drops_out():
     common = dict(n_frames=16, width=621)
     alone = score_scene("crossing", 0, PipelineConfig(), instances=False, **common)["car_crossing"]
     held = score_scene("crossing", 0, PipelineConfig(), instances=True, **common)["car_crossing"]
-    unheld = score_scene("crossing", 0, PipelineConfig(instance_hold_fraction=0.4), instances=True,
+    unheld = score_scene("crossing", 0, PipelineConfig.of(instance_hold_fraction=0.4), instances=True,
                          **common)["car_crossing"]
     assert held["seen"] == alone["seen"] == 13
     assert held["flagged"] == 13 and held["flagged"] > unheld["flagged"] >= alone["flagged"]
@@ -104,7 +104,7 @@ def test_with_instances_the_masks_cover_the_crossing_car_whole():
     method's own regions outside the instances, on the far road, are published too)."""
     own, given = Counter(), Counter()
     score_scene("crossing", 0, PipelineConfig(), n_frames=10, width=621, instances=False, pixels=own)
-    score_scene("crossing", 0, PipelineConfig(instance_unknown_regions=False), n_frames=10, width=621,
+    score_scene("crossing", 0, PipelineConfig.of(instance_unknown_regions=False), n_frames=10, width=621,
                 instances=True, pixels=given)
     assert pixel_scores(given)["pixel_recall"] > 0.95
     assert pixel_scores(given)["pixel_iou"] > pixel_scores(own)["pixel_iou"] + 0.2
@@ -116,7 +116,7 @@ def test_a_mover_the_segmenter_does_not_know_keeps_the_methods_own_regions():
     common = dict(n_frames=10, width=621, instances=True, withheld=("car_crossing",))
     alone = score_scene("crossing", 0, PipelineConfig(), n_frames=10, width=621, instances=False)["car_crossing"]
     kept = score_scene("crossing", 0, PipelineConfig(), **common)["car_crossing"]
-    lost = score_scene("crossing", 0, PipelineConfig(instance_unknown_regions=False), **common)["car_crossing"]
+    lost = score_scene("crossing", 0, PipelineConfig.of(instance_unknown_regions=False), **common)["car_crossing"]
     assert kept["flagged"] == alone["flagged"] >= 4
     assert lost["flagged"] == 0
 

@@ -53,7 +53,7 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     tracks = PointTracker(front_end_config(config).tracks)
     flow = DenseFlow(config.dis_preset())
     grays = [to_gray(f, "mono8" if f.ndim == 2 else "rgb8") for f in frames]
-    tracking = [resized_to_width(g, config.track_width) for g in grays]
+    tracking = [resized_to_width(g, config.settings_of("moving_objects").track_width) for g in grays]
     dense = [resized_to_width(g, config.working_width, config.working_pixels) for g in grays]
     ms = []
     with opencv_threads(config.opencv_thread_count()):

@@ -24,6 +24,7 @@ import numpy as np
 
 from moseg_ros.core.segment import SegmentConfig, segment_objects
 from moseg_ros.frontend.window import Window, WindowFrame
+from moseg_ros.params import setting
 from moseg_ros.refit import BackgroundRefit, raise_worker_error
 
 # The object-level models' noise floors at the front-end's dense size (640 px): SegmentConfig's (1 px² of Sampson
@@ -39,6 +40,16 @@ FUSION_CONFIG = SegmentConfig(epipolar_floor=0.1, flow_floor=0.05, inlier_ratio=
 FUSION_DUTY = 0.1
 # The fewest frames in the window before the decision runs: two pairs, as object_level.
 MIN_FRAMES = 3
+
+
+@dataclass(frozen=True)
+class FusionSettings:
+    """The fused decision's settings."""
+
+    object_fusion: bool = setting(True, "without instances: the paper's fused object-level decision on the "
+                                  "method's own regions (epipolar and quadratic flow models per region, ORK "
+                                  "affinities, co-regularized clustering): a region moves outside the background's "
+                                  "cluster or when the depth tests flagged it. Off: every region found moves")
 
 
 @dataclass(frozen=True)

@@ -8,11 +8,29 @@ still do (``InstanceDecisions``: a hysteresis per instance, followed by its over
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
 from moseg_ros.core.baseline import MIN_INSTANCE_PIXELS, instance_shares
 from moseg_ros.frontend.instances import InstanceTracker, compact_ids
+from moseg_ros.params import setting
+
+
+@dataclass(frozen=True)
+class InstanceSettings:
+    """How upstream instances are judged by the method's regions."""
+
+    instance_min_fraction: float = setting(0.4, "with instances: share of an instance's pixels in the regions the "
+                                           "method would publish without instances (margin included) that flags "
+                                           "it", low=0.01, high=1.0)
+    instance_hold_fraction: float = setting(0.1, "with instances: a flagged instance stays flagged while this share "
+                                            "of it lies in those regions (each instance followed by its overlap; at "
+                                            "or above instance_min_fraction: no hold)", low=0.0, high=1.0)
+    instance_unknown_regions: bool = setting(True, "with instances: also publish the method's own regions that lie "
+                                             "mostly outside every instance (movers the instance source does not "
+                                             "know), with ids from 2**30 up")
 
 
 def published_regions(labels: np.ndarray, shape: tuple[int, int], margin_px: int) -> np.ndarray:

@@ -19,7 +19,18 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.motion_config import MotionFrontEndConfig
 from moseg_ros.frontend.tracks import PointTracker
+from moseg_ros.params import setting
 from moseg_ros.timing import Stages
+
+
+@dataclass(frozen=True)
+class ObserveSettings:
+    """The observe stage's settings: how many frames the window holds, how finely and densely the frame is
+    tracked."""
+
+    window_length: int = setting(8, "frames in the sliding window", low=3, high=60)
+    track_width: int = setting(1280, "KLT tracks run at this width (pixels)", low=64, high=4096)
+    max_tracks: int = setting(2000, "points tracked per frame", low=50, high=20000)
 
 
 def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:

@@ -7,17 +7,31 @@ when ``instance_min_fraction`` of its reliable pixels move. Blind to motion insi
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from moseg_ros.core.baseline import dynamic_instances, epipolar_residual
+from moseg_ros.core.baseline import BaselineConfig, dynamic_instances, epipolar_residual
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.instances import InstanceTracker, propose_regions
 from moseg_ros.methods.base import Decision, FrameInput, Status
+from moseg_ros.params import setting
 
 if TYPE_CHECKING:
     from moseg_ros.config import PipelineConfig
+
+
+@dataclass(frozen=True)
+class EpipolarBaselineSettings:
+    """The epipolar baseline's settings."""
+
+    residual_threshold_px: float = setting(1.5, "epipolar residual above which a pixel moves (working px)",
+                                           low=0.1, high=50.0)
+    min_region_area: int = setting(60, "smallest moving region kept (working pixels)", low=1, high=100000)
+    min_persistence: int = setting(2, "frames a moving region must persist before it is flagged", low=1, high=100)
+    instance_min_fraction: float = setting(0.4, "with instances: share of an instance's reliable pixels that must "
+                                           "move to flag it", low=0.01, high=1.0)
 
 
 class EpipolarBaseline:
@@ -27,10 +41,10 @@ class EpipolarBaseline:
     flow_preset = "fast"
 
     def __init__(self, config: PipelineConfig) -> None:
-        self.config = config
+        self.config, self.settings = config, config.settings_of(self.name)
         self._flow = DenseFlow(config.dis_preset())
         self._regions = InstanceTracker()
-        self._baseline = config.baseline()
+        self._baseline = replace(BaselineConfig(), residual_threshold_px=self.settings.residual_threshold_px)
         self.reset()
 
     def close(self) -> None:
@@ -56,12 +70,13 @@ class EpipolarBaseline:
         moving = evidence.residual > evidence.threshold
         found = evidence.fundamental is not None or evidence.homography is not None
         if instances is not None:
-            ids = dynamic_instances(instances, moving, evidence.valid, self.config.instance_min_fraction)
+            ids = dynamic_instances(instances, moving, evidence.valid, self.settings.instance_min_fraction)
             return instances, ids, found
-        labels = self._regions.update(propose_regions(moving, self.config.min_region_area))
+        labels = self._regions.update(propose_regions(moving, self.settings.min_region_area))
         ids = np.array(sorted(i for i, age in self._regions.ages.items()
-                              if age >= self.config.min_persistence), dtype=np.int32)
+                              if age >= self.settings.min_persistence), dtype=np.int32)
         return labels, ids, found
 
 
 METHOD = EpipolarBaseline
+SETTINGS = EpipolarBaselineSettings

@@ -11,33 +11,40 @@ applies are, in frames. docs/method.md has each stage's geometry.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from moseg_ros.frontend.flow import DenseFlow
-from moseg_ros.frontend.fusion import FusionDecision, FusionSchedule
-from moseg_ros.frontend.instance_decisions import InstanceDecisions, published_regions, with_unknown_regions
+from moseg_ros.frontend.fusion import FusionDecision, FusionSchedule, FusionSettings
+from moseg_ros.frontend.instance_decisions import (InstanceDecisions, InstanceSettings, published_regions,
+                                                   with_unknown_regions)
 from moseg_ros.frontend.motion import MotionFrontEnd
 from moseg_ros.frontend.motion_config import MotionFrontEndConfig
-from moseg_ros.frontend.observe import resized_to_width, scaled_to
+from moseg_ros.frontend.observe import ObserveSettings, resized_to_width, scaled_to
 from moseg_ros.frontend.refit_schedule import RefitSchedule
+from moseg_ros.frontend.regions import RegionSettings
 from moseg_ros.methods.base import Decision, FrameInput, Status
 
 if TYPE_CHECKING:
     from moseg_ros.config import PipelineConfig
 
 
+@dataclass(frozen=True)
+class MovingObjectsSettings(InstanceSettings, FusionSettings, RegionSettings, ObserveSettings):
+    """The method's settings: its stages' (observe, regions, the fused decision, upstream instances)."""
+
+
 def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
-    """The front-end's settings from the pipeline's (one declaration per setting: PipelineConfig)."""
-    base = MotionFrontEndConfig()
-    return replace(base, window_length=config.window_length,
-                   tracks=replace(base.tracks, max_points=config.max_tracks, seed_width=config.working_width,
+    """The front-end's settings from the pipeline's working size and the method's own settings."""
+    base, own = MotionFrontEndConfig(), config.settings_of("moving_objects")
+    return replace(base, window_length=own.window_length,
+                   tracks=replace(base.tracks, max_points=own.max_tracks, seed_width=config.working_width,
                                   seed_pixels=config.working_pixels),
                    dense_width=config.working_width, dense_pixels=config.working_pixels,
-                   min_region_area=config.min_region_area)
+                   min_region_area=own.min_region_area)
 
 
 class MovingObjects:
@@ -49,12 +56,13 @@ class MovingObjects:
     flow_preset = "balanced"
 
     def __init__(self, config: PipelineConfig) -> None:
-        self.config = config
-        self._instance_decisions = InstanceDecisions(config.instance_min_fraction, config.instance_hold_fraction)
+        self.config, self.settings = config, config.settings_of(self.name)
+        self._instance_decisions = InstanceDecisions(self.settings.instance_min_fraction,
+                                                     self.settings.instance_hold_fraction)
         self._front_end = MotionFrontEnd(front_end_config(config), DenseFlow(config.dis_preset()))
         self._refits = RefitSchedule(self._front_end, config)
-        self._fusion = (FusionSchedule(config.window_length, config.refit == "background", config.refit_nice)
-                        if config.object_fusion else None)
+        self._fusion = (FusionSchedule(self.settings.window_length, config.refit == "background", config.refit_nice)
+                        if self.settings.object_fusion else None)
 
     def reset(self) -> None:
         """Forget every track and region (and, with workers, the refit and fused decision they run or wait with)."""
@@ -71,7 +79,7 @@ class MovingObjects:
 
     def step(self, frame: FrameInput) -> Decision:
         """Track, test and group; the front-end's regions are the moving objects."""
-        tracking = resized_to_width(frame.full, self.config.track_width)
+        tracking = resized_to_width(frame.full, self.settings.track_width)
         K = None if frame.camera_matrix is None else scaled_to(frame.camera_matrix, frame.full.shape, tracking.shape)
         observation = self._front_end.observe(tracking, K)
         refit, waited, new_refit = self._refits.refit(observation, frame.next_frame_at)
@@ -126,7 +134,7 @@ class MovingObjects:
         margin = round(self.config.mask_margin_px * instances.shape[1] / full_width)
         regions = published_regions(labels, instances.shape, margin)
         moving = self._instance_decisions.update(instances, regions)
-        if not self.config.instance_unknown_regions:
+        if not self.settings.instance_unknown_regions:
             return Decision(instances, moving)
         combined, own = with_unknown_regions(instances, labels)
         return Decision(combined, np.concatenate([moving, own]))
@@ -134,3 +142,4 @@ class MovingObjects:
 
 
 METHOD = MovingObjects
+SETTINGS = MovingObjectsSettings

@@ -9,6 +9,7 @@ frames).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,9 +20,20 @@ from moseg_ros.frontend.tracks import PointTracker
 from moseg_ros.frontend.window import Window, WindowFrame
 from moseg_ros.methods.base import Decision, FrameInput, Status
 from moseg_ros.methods.epipolar_baseline import EpipolarBaseline
+from moseg_ros.params import setting
 
 if TYPE_CHECKING:
     from moseg_ros.config import PipelineConfig
+
+
+@dataclass(frozen=True)
+class ObjectLevelSettings:
+    """The object-level method's settings."""
+
+    window_length: int = setting(8, "frames in the sliding window", low=3, high=60)
+    refit_interval: int = setting(4, "frames between refits of the motion models", low=1, high=60)
+    ground_contact: bool = setting(True, "objects standing on the ground plane are moving when their foot slides "
+                                   "over it")
 
 
 class ObjectLevel:
@@ -31,11 +43,11 @@ class ObjectLevel:
     flow_preset = "medium"  # the ground-contact test compares flows of a pixel or two (core/ground_contact.py)
 
     def __init__(self, config: PipelineConfig) -> None:
-        self.config = config
+        self.config, self.settings = config, config.settings_of(self.name)
         self._flow = DenseFlow(config.dis_preset())
-        self._segment_config = SegmentConfig() if config.ground_contact else SegmentConfig(ground_contact=None)
+        self._segment_config = SegmentConfig() if self.settings.ground_contact else SegmentConfig(ground_contact=None)
         self._points = PointTracker()
-        self._window = Window(config.window_length)
+        self._window = Window(self.settings.window_length)
         self._fallback = EpipolarBaseline(config)
         self.reset()
 
@@ -76,7 +88,7 @@ class ObjectLevel:
         appeared = bool(present - self._known_objects)
         self._known_objects |= present
         self._since_refit += 1
-        if len(self._window) >= 3 and (self._since_refit >= self.config.refit_interval or appeared):
+        if len(self._window) >= 3 and (self._since_refit >= self.settings.refit_interval or appeared):
             result = segment_objects(*self._window.arrays(), config=self._segment_config,
                                      rng=np.random.default_rng(0))
             self._object_dynamic = result.object_ids[result.dynamic].astype(np.int32)
@@ -85,3 +97,4 @@ class ObjectLevel:
 
 
 METHOD = ObjectLevel
+SETTINGS = ObjectLevelSettings

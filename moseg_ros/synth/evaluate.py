@@ -203,10 +203,11 @@ def run(args: argparse.Namespace) -> int:
     kinds = by_object(scenes)
     print("by object: " + ", ".join(f"{kind}{'*' if o['moving'] else ''} {o['flagged']}/{o['seen']}"
                                     for kind, o in kinds.items()))
+    contact = config.settings_of("object_level").ground_contact
     print(f"moving object-frames flagged {total['moving_flagged']}/{total['moving_seen']} "
           f"({100 * total['moving_flagged_fraction']:.1f} %), static object-frames flagged "
           f"{total['static_flagged']}/{total['static_seen']} ({100 * total['static_flagged_fraction']:.1f} %) "
-          f"(method {config.method}, flow {config.dis_preset()}, ground contact {config.ground_contact}, camera at "
+          f"(method {config.method}, flow {config.dis_preset()}, ground contact {contact}, camera at "
           f"{args.rate:g} Hz)")
     print(f"moving pixels: IoU {total['pixel_iou']:.3f}, precision {total['pixel_precision']:.3f}, "
           f"recall {total['pixel_recall']:.3f} (the published masks over the scored frames)")
