@@ -5,8 +5,8 @@ an item's inliers are the hypotheses of its ``t`` smallest residuals (t a fracti
 level, per item, the hypotheses within a ratio of its residual under its own model), c_i ∈ {0,1}^M, and the
 block's kernel is k_ij = c_iᵀ c_j / sqrt(t_i t_j). Blocks are summed over frame pairs and divided by the number
 of pairs in which both items are present plus a prior (Xu, Cheong, Li, CVPR 2018, normalise by co-occurrence),
-so items seen together in few pairs get no spurious certainty: on KT3DMoSeg a prior of 1-2 pairs instead of
-0.1 lowered the error from about 10 % to 6.7 % (short trajectories were split from long ones by time).
+so items seen together in few pairs get no spurious certainty: with too small a prior, short trajectories are
+split from long ones by when they were seen rather than by how they move (docs/experiments.md, ``prior``).
 
 Sparsification (Lai, Wang, Chin et al., IEEE T-ITS 2017): each row keeps the entries whose probability
 p_ij ∝ max_j a_ij^α − a_ij^α is below the row's entropy threshold, i.e. the entries close to the row's strongest;

@@ -21,7 +21,7 @@ def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0, m
     """The scale (at most 1) that shrinks a ``height`` x ``width`` frame to at most ``max_width`` pixels wide and,
     when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides), but no side below
     ``min_side`` that is at least that long. A width alone lets a frame's cost grow with its height: a 4:3 camera
-    at 640 px wide holds 2.5 times a KITTI frame's pixels."""
+    at 640 px wide holds 2.5 times the pixels of a 10:3 street camera's frame."""
     scale = max_width / width
     if max_pixels > 0:
         scale = min(scale, float(np.sqrt(max_pixels / (height * width))))

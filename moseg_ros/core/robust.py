@@ -2,7 +2,7 @@
 
 cv2.findFundamentalMat and cv2.findHomography return None for data without a model, but their USAC
 variants can also raise (``!model.empty()`` in setModelParameters, when the final refit of a degenerate
-sample comes out empty: seen on real KITTI frames streamed with dropped frames). A frame without a model
+sample comes out empty: seen on real street frames streamed with dropped frames). A frame without a model
 has no motion evidence; it must not be an error.
 """
 

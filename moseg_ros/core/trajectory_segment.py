@@ -93,15 +93,15 @@ def segment_trajectories(tracks_xy: np.ndarray, visible: np.ndarray, *,
     co-regularized spectral clustering. An unknown number of motions (at least 2) is the largest K whose
     clusters each keep all but ``max_conductance`` of their edge weight inside, in every sparsified view: the
     sparsified graphs keep only near neighbours, so their spectra decay smoothly and show no eigengap
-    (measured on KT3DMoSeg).
+    (docs/experiments.md, ``max_conductance``).
 
     A second pass (``refine_hypotheses`` > 0) redraws the hypotheses with ``guided_fraction`` of the minimal
     samples inside the first pass's clusters and clusters again with the same K: a random 8-point sample is
     seldom pure when an object holds a few percent of the points, a sample from one cluster mostly is, so the
     small motions get models of their own (cluster-guided sampling, in the spirit of Chin et al.'s guided
-    sampling for multi-structure fitting). Measured on KT3DMoSeg with K given (moseg eval kt3dmoseg, seeds
-    0-9): 7.41 % -> 6.82 % mean error, lower on 9 of the 10 seeds, 4.8 -> 8.1 s per pass. With K estimated it
-    measured no better (8.24 % against 8.18 %) at 1.5 times the time, so it only runs when K is given.
+    sampling for multi-structure fitting). With K given it lowers the error on most seeds for the cost of a second
+    pass; with K estimated it gains nothing, so it only runs when K is given (docs/experiments.md,
+    ``refine_hypotheses``).
 
     Args:
         tracks_xy: (N, F, 2) positions (pixels); visible: (N, F) bool.

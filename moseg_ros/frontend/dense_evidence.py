@@ -129,7 +129,7 @@ class DenseEvidence:
                 if self.config.dense_footing else None)
         if near is None:
             return moving
-        # Gated as the residual is: on KITTI 07 the smooth panes of near parked cars' windows came out nearer than
-        # the road under them (docs/experiments.md); an oncoming car's smooth body keeps its pixels near texture
-        # while its flow is small (``smooth_max_flow``).
+        # Gated as the residual is: the smooth panes of near parked cars' windows came out nearer than the road
+        # under them (docs/experiments.md, ``dense_footing``); an oncoming car's smooth body keeps its pixels near
+        # texture while its flow is small (``smooth_max_flow``).
         return moving | (near if reliable is None else near & reliable)

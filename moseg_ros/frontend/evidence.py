@@ -76,9 +76,9 @@ class MotionEvidence:
     def refit_tracks(self, observation: Observation) -> Refit:
         """The track test of one observation (the window's pairs with sticky flags), its epipolar distances
         corroborated by the last dense residual; the Refit carries the last dense mask (``dense_index``: its
-        frame). The cheaper half of a refit, and the one whose age costs: a decision whose track flags are two
-        frames old loses what one whose dense mask is three frames old does not (docs/experiments.md), so a
-        background worker hands it over before it fits the dense half."""
+        frame). The cheaper half of a refit, and the one whose age costs: stale track flags lose movers that a
+        dense mask as stale keeps (docs/experiments.md, ``refit``), so a background worker hands it over before it
+        fits the dense half."""
         stages = Stages()
         with stages("fit"):
             flagged, depth = self.tracks.flagged(observation, self._residual)

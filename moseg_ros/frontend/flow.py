@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 
 # name: (OpenCV's preset, variational refinement iterations per scale instead of the preset's, or None).
-# balanced is medium's resolution with 2 refinement iterations instead of 5: a fifth less time, and the
-# evaluations within 0.01 of medium's (docs/experiments.md).
+# balanced is medium's resolution with 2 refinement iterations instead of 5: less time, and the evaluations
+# close to medium's (docs/experiments.md, ``flow_preset``).
 DIS_PRESETS = {
     "ultrafast": (cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST, None),
     "fast": (cv2.DISOPTICAL_FLOW_PRESET_FAST, None),

@@ -28,11 +28,11 @@ from moseg_ros.params import setting
 from moseg_ros.refit import BackgroundRefit, raise_worker_error
 
 # The object-level models' noise floors at the front-end's dense size (640 px): SegmentConfig's (1 px² of Sampson
-# distance, 0.25 px² of flow error) are the whole residual of a small far mover there, and the clustering put most
-# of KT3DMoSeg's true regions in the background's cluster; eigengap ties resolved far towards more motions take
-# back fewer movers still (docs/experiments.md has the figures). An object's flow vectors are thinned to a thousand
-# a pair: the background holds most of the grid, its model and mean error come out the same from a thousand, and
-# the decision takes half the time.
+# distance, 0.25 px² of flow error) are the whole residual of a small far mover there, and with them the clustering
+# puts most true movers in the background's cluster; eigengap ties resolved far towards more motions take back
+# fewer movers still (docs/experiments.md, ``object_fusion``). An object's flow vectors are thinned to a thousand a
+# pair: the background holds most of the grid, and its model and mean error come out the same from a thousand at a
+# fraction of the cost.
 FUSION_CONFIG = SegmentConfig(epipolar_floor=0.1, flow_floor=0.05, inlier_ratio=2.0, tie_tolerance=0.6,
                               ground_contact=None, max_flow_vectors=1000)
 # The largest share of the time the fusion's worker may fit (with a background refit): the region ids carry a

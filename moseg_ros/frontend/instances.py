@@ -43,7 +43,7 @@ def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """An id map ((H, W) ints, 0 or below = none) renumbered 0..R: returns the (R + 1,) ids in order, the first
     0 (none), and the (H, W) int32 map of each pixel's number (the InstanceTracker's input form)."""
     ids = np.maximum(ids, 0)
-    if ids.max(initial=0) <= DENSE_IDS:  # a table of the ids present: NumPy's unique sorts every pixel, 7x slower
+    if ids.max(initial=0) <= DENSE_IDS:  # a table of the ids present: NumPy's unique sorts every pixel, much slower
         present = np.flatnonzero(np.bincount(ids.ravel()))
         values = present if present.size and present[0] == 0 else np.concatenate([[0], present])
         table = np.zeros(int(values[-1]) + 1, dtype=np.int32)

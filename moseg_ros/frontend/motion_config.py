@@ -16,17 +16,18 @@ class MotionFrontEndConfig:
 
     window_length: int = 8
     # KLT's window at the tracking width (1280 px): a smaller window drifts less where it straddles a mover's
-    # edge (fewer static points flagged on KT3DMoSeg) and follows smaller movers, and each point costs less;
-    # 13 px rather than 17 once the dense flow was DIS medium (21 -> 17 with fast, whose coarse flow needed
-    # the tracks' wider reach; docs/experiments.md has both measurements). Corners are found at the dense width, with
-    # a quality floor low enough that as many are found there as at full size.
+    # edge (fewer static points flagged) and follows smaller movers, and each point costs less; a dense flow at half
+    # resolution guesses each point closely enough for it, where a quarter-resolution flow leaves the tracks more to
+    # reach (docs/experiments.md, ``tracks``). Corners are found at the dense width, with a quality floor low enough
+    # that as many are found there as at full size.
     tracks: TrackerConfig = field(default_factory=lambda: TrackerConfig(max_points=2000, window=13, quality=0.001,
                                                                         seed_width=640))
     track_motion: TrackMotionConfig = field(default_factory=TrackMotionConfig)
     sticky_windows: int = 2
     sticky_frames: int = 8
     link_fraction: float = 0.032
-    # Three linked flagged tracks make a region: a pedestrian at 621 px holds two to five tracks (docs/experiments.md).
+    # Three linked flagged tracks make a region: a small far pedestrian holds only a few tracks
+    # (docs/experiments.md, ``min_group``).
     min_group: int = 3
     # A moving object carries its tracks along, so tracks that lived through the whole window unflagged are
     # static evidence: a hull where they outnumber the flagged tracks is scattered noise (water, a crowd,
@@ -35,15 +36,15 @@ class MotionFrontEndConfig:
     hull_purity: float = 0.5
     # A group of four or more fills only the triangles of its tracks' Delaunay triangulation whose sides are at most
     # this many times the link distance, not its convex hull, which bridges the bays between its tracks: the gap
-    # between a van and the few tracks flagged in a tree beside it, water around a swan (docs/experiments.md). At
-    # 1.5 a car followed by a 30 Hz camera, whose few flagged tracks lie far apart, lost a seventh of its frames.
-    # 0: the convex hull.
+    # between a vehicle and the few tracks flagged in a tree beside it, the water around a swimming animal. Less
+    # reach loses frames of a car that a high-rate camera follows, whose few flagged tracks lie far apart
+    # (docs/experiments.md, ``hull_reach``). 0: the convex hull.
     hull_reach: float = 2.0
     dense: bool = True
     dense_gap: int = 1
     dense_width: int = 640
     # The dense frame holds at most this many pixels too (0: any; the pipeline's ``working_pixels``), so that a
-    # tall frame costs what a KITTI one does.
+    # tall (4:3) frame costs about what a wide street camera's does.
     dense_pixels: int = 0
     # Matches landing within 5 % of the width (32 px at 640) of the earlier frame's border are not trusted: DIS
     # extrapolates there, and in a turn the band entering the view came out moving (docs/experiments.md).
@@ -51,10 +52,9 @@ class MotionFrontEndConfig:
         residual_threshold_px=1.0, residual_noise_factor=5.0, border_fraction=0.05))
     # The dense residual counts only beyond this share of each pixel's flow, as the track test's distance does
     # beyond ``TrackMotionConfig.epipole_allowance`` of its displacement: the frame pair's F is off by a small angle,
-    # and near static surfaces that flow fast (a parked car or a wall at the image's side) came out moving. On
-    # KITTI 07's 134 static frames it took the masked share from 0.79 to 0.49 %, at 0.3 points of KT3DMoSeg's
-    # recall (docs/experiments.md). The residual that corroborates a track (``corroboration_reach``) counts the
-    # same way. 0: off.
+    # and near static surfaces that flow fast (a parked car or a wall at the image's side) came out moving; the
+    # allowance clears most of them for little recall (docs/experiments.md, ``dense_allowance``). The residual that
+    # corroborates a track (``corroboration_reach``) counts the same way. 0: off.
     dense_allowance: float = 0.06
     # The dense residual that corroborates a track's epipolar distance (``TrackMotionConfig.corroboration``) is
     # the largest within this many pixels of it at the dense width; where it reaches ``corroboration_floor`` of
@@ -79,15 +79,16 @@ class MotionFrontEndConfig:
     # the road it stands on (docs/experiments.md).
     dense_footing: bool = True
     # Its least excess over the footing, in the dense flow's pixels over ``dense_gap`` frames: a far oncoming car
-    # moves 2-4 px a frame at 640 px, and the track test's 1 px (at full size over two frames) stopped it; 0.25 is
-    # about that 1 px in these units. With the footing's allowance near the horizon at the road's tolerance, the far
-    # car's excess is a fifth to a quarter of a pixel; 0.2 and 0.15 flagged no more of KITTI 07 (docs/experiments.md).
+    # moves only a few pixels a frame at the dense width, and the track test's 1 px (at full size over two frames)
+    # stops it; 0.25 is about that 1 px in these units. With the footing's allowance near the horizon at the road's
+    # tolerance, such a car's excess is a fraction of a pixel, and a floor that low adds no false positives on a
+    # static street (docs/experiments.md, ``dense_footing``).
     dense_footing_px: float = 0.2
     # A pixel's footing counts only where its column holds road more than this share of the dense flow's height
     # below it: the road's tolerance lets a near parked car's own bumper pass for road where the image's lower edge
     # (and the border DIS is not trusted at) hides the road under it, and its number plate came out nearer than
-    # that. On KITTI 07 the masked share fell from 0.33 to 0.27 %; more clearance (0.05, 0.08) took more of
-    # KT3DMoSeg's movers near the image's bottom (docs/experiments.md). 0: any road under it.
+    # that. More clearance loses movers near the image's lower edge (docs/experiments.md,
+    # ``dense_footing_clearance``). 0: any road under it.
     dense_footing_clearance: float = 0.03
     # Keep the last refit's dense regions that touch this one's (the module's docstring): regions rather than the
     # whole last mask, which flagged more static pixels for the same recall (docs/experiments.md).
@@ -99,23 +100,22 @@ class MotionFrontEndConfig:
     # counts a pixel's whole displacement, the Sampson distance about half of its part across the epipolar line.
     late_dense_planar_px: float = 0.6
     # Moving tracks closer to the image's border than this share of its width are not drawn: there KLT's window
-    # and pyramid are clipped and what enters or leaves the view has half its support (KITTI 07's remaining
-    # false hulls in its turn were there; docs/experiments.md).
+    # and pyramid are clipped and what enters or leaves the view has half its support (in a turn, false hulls
+    # gather there; docs/experiments.md, ``track_border``).
     track_border: float = 0.03
     # The flow view around each hull (core/object_flow.py): grows smooth bodies, trims swallowed background.
     # None: hulls as drawn.
     object_flow: ObjectFlowConfig | None = field(default_factory=ObjectFlowConfig)
     # Frames the moving evidence is remembered after it drops out (``remembered``). One bridges a lost frame;
-    # each more frame catches more of the synthetic looming and crossing cars and carries more false regions on
-    # real streets (docs/experiments.md). 0: off.
+    # each more frame catches more looming and crossing cars and carries more false regions on static streets
+    # (docs/experiments.md, ``memory_frames``). 0: off.
     memory_frames: int = 1
     memory_veto: int = 3
     # A region published ``coast_after`` frames in a row whose evidence, moved by the similarity of the tracks on
     # it (``coast_tracks`` or more, of any age; with fewer, by their last similarity and along the dense flow), is
     # less than ``coast_cover`` evidence now is drawn there for up to ``coast_frames`` frames in a row (``coasted``):
-    # a looming or small fast car's evidence drops out for a few frames. Each more frame (1-4) and a higher cover
-    # (0.5-0.7) caught more of the synthetic cars at a few hundredths of a point of KT3DMoSeg's static points
-    # (docs/experiments.md). 0: off.
+    # a looming or small fast car's evidence drops out for a few frames. More frames and a higher cover catch more
+    # of such cars for few static pixels (docs/experiments.md, ``coast_frames``). 0: off.
     coast_frames: int = 4
     coast_after: int = 3
     coast_tracks: int = 4
@@ -128,6 +128,6 @@ class MotionFrontEndConfig:
     keep_apart_share: float = 0.5
     keep_apart_motion: float = 0.3
     # The most track pairs of skipped frames a refit fits before its own, newest first (``_catch_up``): each costs
-    # as much as the refit's own pair fit (one was the most a refit could afford while MAGSAC++ fitted them). 8:
-    # every skipped frame's of a window of eight.
+    # as much as the refit's own pair fit, which the polished fits keep cheap (docs/experiments.md,
+    # ``catch_up_pairs``). 8: every skipped frame's of a window of eight.
     catch_up_pairs: int = 8

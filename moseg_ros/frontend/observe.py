@@ -49,8 +49,8 @@ def resized_to_width(gray: np.ndarray, width: int, max_pixels: int = 0) -> np.nd
     when it is not larger.
 
     Halved by ``cv2.pyrDown`` while the half keeps ``PYRAMID_SLACK`` of that size, then resized the rest of the way
-    (INTER_LINEAR up, INTER_AREA down): INTER_AREA at a factor like KITTI's 1226 -> 640 takes 1.2 ms on the frame
-    path, the pyramid's halving and a 4 % linear enlargement 0.2 ms (docs/experiments.md)."""
+    (INTER_LINEAR up, INTER_AREA down): INTER_AREA at a large non-integer factor costs several times what the
+    pyramid's halving and a slight linear enlargement do (docs/experiments.md, ``PYRAMID_SLACK``)."""
     scale = shrink_scale(*gray.shape, width, max_pixels, MIN_WORKING_SIDE)
     if scale == 1.0:
         return gray

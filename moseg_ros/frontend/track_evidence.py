@@ -187,8 +187,8 @@ class TrackEvidence:
                   frames: int | None = None) -> tuple[np.ndarray, PairEvidence] | None:
         """(ids, evidence) of the tracks seen in both frames of a pair ``frames`` apart (default: ``gap``; a
         longer pair skips the planar check, see ``_flagged``) of ``observation``'s window, at its tracking size,
-        guarded against a misjudged rotation whatever its K is (core/track_motion.py: in KITTI 07's corner
-        camera_info's K let a house pass for a mover)."""
+        guarded against a misjudged rotation whatever its K is (core/track_motion.py: in a turn even a calibrated
+        K let a near house pass for a mover; docs/experiments.md, ``max_rotation_deg``)."""
         config = self.config.track_motion.for_width(observation.tracking_shape[1])
         K = observation.camera_matrix
         if frames is not None:

@@ -28,8 +28,8 @@ class TrackerConfig:
     window: int = 21
     levels: int = 3
     # KLT stops iterating at a level once its step is below this. 0.1 px instead of OpenCV's usual 0.03
-    # cuts a third of the tracking time and moves the tracks by 0.03 px (p95), far below the 1 px
-    # forward-backward and RANSAC thresholds.
+    # saves much of the tracking time and moves the tracks by a small fraction of a pixel, far below the 1 px
+    # forward-backward and RANSAC thresholds (docs/experiments.md, ``tracks``).
     stop_px: float = 0.1
     # With a dense backward flow, a point whose round trip through it lands within this of its start needs
     # no KLT backward pass. Half of fb_max_px: the dense flow is coarser than KLT, so only a clear agreement
@@ -39,7 +39,8 @@ class TrackerConfig:
     # is within a pixel or two except on small fast movers, which one coarser level still reaches.
     guided_levels: int = 1
     # New corners are found on the frame shrunk to this width (0: at full size) and to at most ``seed_pixels``
-    # pixels (0: any): a third of the cost at half size, and ``min_distance`` still holds in full-size pixels.
+    # pixels (0: any): much cheaper at half size (docs/experiments.md, ``tracks``), and ``min_distance`` still
+    # holds in full-size pixels.
     seed_width: int = 0
     seed_pixels: int = 0
 

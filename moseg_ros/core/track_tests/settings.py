@@ -28,8 +28,8 @@ class TrackMotionConfig:
     # With the dense residual near each track (``moving_tracks``' ``dense``), a distance flags a track only where
     # the dense flow departs from the epipolar geometry by at least this share of it too: KLT drifts where its
     # window straddles a near object's edge (a tree trunk against the far street) and the dense flow there does
-    # not (docs/experiments.md). 0: off. A distance ``evident_factor`` times the threshold needs no corroboration (KLT's
-    # drift stays within 1-3 times it; a mover's distance often goes far beyond).
+    # not (docs/experiments.md, ``corroboration``). 0: off. A distance ``evident_factor`` times the threshold needs no
+    # corroboration (KLT's drift stays within a few times it; a mover's distance often goes far beyond).
     corroboration: float = 0.75
     evident_factor: float = 3.0
     min_tracks: int = 20
@@ -44,17 +44,17 @@ class TrackMotionConfig:
     gric_min_sigma_px: float = 0.1
     # The full homography fit (MAGSAC++, the costliest fit of a refit on a street) runs only where a quick one
     # (plain RANSAC, ``screen_iterations``, on every ``screen_stride``-th track) explains at least this share
-    # of F's inliers: a street's dominant plane holds a third of them, and no pair that came out planar on
-    # KITTI or DAVIS screened below three quarters (docs/experiments.md).
+    # of F's inliers: a street's dominant plane holds well under half of them, and a pair that is planar screens
+    # far above half (docs/experiments.md, ``homography_screen``).
     homography_screen: float = 0.5
     screen_stride: int = 4
     screen_iterations: int = 50
     ground_ratio: float = 0.3
     # The ratio alone is decided only where the floor's parallax is at least this many times the pair's noise (the
     # robust sigma of F's inliers' distances), so that its bar lies five sigmas under the floor: near the horizon
-    # the floor is a pixel or two, and there the far end of a synthetic street (sigma 0.55 px over the window's
-    # long pair at 621 px) came out farther than the road, while a car followed 30 m ahead under the same floor
-    # with sigma 0.14 px is decided (docs/experiments.md). The shortfall test, in pixels, decides the rest.
+    # the floor is a pixel or two, and there the far end of a street in a noisy pair came out farther than the road,
+    # while a car followed ahead under the same floor in a pair of low noise is decided (docs/experiments.md,
+    # ``ground_ratio_noise``). The shortfall test, in pixels, decides the rest.
     ground_ratio_noise: float = 7.0
     # The ground test in pixels (the module's docstring; docs/experiments.md): the parallax short of the floor's by
     # this many pixels and below this share of it.
@@ -63,9 +63,10 @@ class TrackMotionConfig:
     # A track short by this many pixels needs only this share of the floor: the 0.6 guards against a floor read
     # at the wrong row (the road in front of an object taken for its foot), an error of a share that shrinks as
     # the parallax grows (a row more or less matters less below the horizon than near it), while a pedestrian
-    # walking away keeps 0.7-0.9 of the road's parallax. 0: off. Pixels at ``REFERENCE_WIDTH``, in proportion at
+    # walking away keeps most of the road's parallax. 0: off. Pixels at ``REFERENCE_WIDTH``, in proportion at
     # other tracking widths (``for_width``): the walker's shortfall is a share of its parallax, which shrinks with
-    # the image, and at 621 px the 4 px it falls short by at KITTI's size are 2 (docs/experiments.md).
+    # the image, and at half that width the 4 px it falls short by there are 2 (docs/experiments.md,
+    # ``shortfall_strong_px``).
     shortfall_strong_px: float = 4.0
     shortfall_strong_ratio: float = 0.9
     # The shortfall is measured at the row the track's object stands on: the lowest track of its column at its own
@@ -81,8 +82,8 @@ class TrackMotionConfig:
     # beneath its body, which lies that much farther): ``footing_overhang`` camera heights, a share of the
     # footing's inverse depth of the overhang over the footing's depth, which over a level road is the overhang
     # over the camera's height times the tangent of the footing's angle below the horizon. 1: a car's 0.8-1 m
-    # over a dashcam's 1.65 m with room to spare; a flat 0.4 instead left a far oncoming car's first frames
-    # unflagged and flagged near parked cars' bumpers on KITTI 07 (docs/experiments.md).
+    # over a dashcam's 1.65 m with room to spare; a flat margin instead leaves a far oncoming car's first frames
+    # unflagged or flags near parked cars' bumpers (docs/experiments.md, ``footing_margin``).
     footing_margin: float = 0.3
     footing_overhang: float = 1.0
     footing_px: float = 1.0
@@ -92,14 +93,14 @@ class TrackMotionConfig:
     footing_same_depth: float = 0.25
     # A track's footing is decided only where its column holds a footing candidate more than this share of the
     # tracks' vertical extent below its object's lowest track: a near parked van cut by the image's lower edge
-    # stands out of view, and the column's tracks beside its edge (the kerb behind it) are no footing. On KITTI 07
-    # the van's edge was 1.8-3.7 % of frames 46-49; 0.08 is 30 rows at 375 (docs/experiments.md).
+    # stands out of view, and the column's tracks beside its edge (the kerb behind it) are no footing; such an edge
+    # spans a few hundredths of the extent (docs/experiments.md, ``footing_clearance``).
     footing_clearance: float = 0.08
     # A fitted F's epipolar lines are off by a small angle, so a static track's distance from its line grows
     # with how far it moved: its distance counts only beyond this share of its displacement (radians of line
-    # direction; 0.03 is 1.7 degrees). On KITTI 07 the tracks flagged on near parked cars' windows and glints
-    # moved 52 px over a pair at the median (the flagged movers of KT3DMoSeg 17 px), their distance 0.027 of
-    # it (the movers' 0.16; docs/experiments.md).
+    # direction; 0.03 is 1.7 degrees). Tracks on near static surfaces (parked cars' windows, glints) move far over
+    # a pair and, flagged, lie just under this share of it from their lines; flagged movers move less and lie at
+    # several times that share (docs/experiments.md, ``epipole_allowance``).
     epipole_allowance: float = 0.03
 
     def for_width(self, width: int) -> TrackMotionConfig:
