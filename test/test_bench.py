@@ -95,8 +95,8 @@ def test_soak_runs_the_real_node_and_reports(textured_bag, ros_domain, tmp_path,
 def test_soak_writes_each_setting_as_ros_reads_its_type_back():
     from moseg_ros.bench.soak import _node_params
 
-    assert _node_params(["refit_wait_ms=100", "queue_size=2", "ground_contact=True", "refit=inline"]) == [
-        "refit_wait_ms:=100.0", "queue_size:=2", "ground_contact:=true", "refit:=inline"]
+    assert _node_params(["refit_wait_ms=100", "queue_size=2", "object_level.ground_contact=True", "refit=inline"]) == [
+        "refit_wait_ms:=100.0", "queue_size:=2", "object_level.ground_contact:=true", "refit:=inline"]
     with pytest.raises(ValueError, match="queue_size must be a int"):
         _node_params(["queue_size=two"])
     with pytest.raises(ValueError, match="refit_wait_ms -5.0 must be within"):
