@@ -11,6 +11,7 @@ there, else its track half); the stream's first decisions, up to the first with 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from moseg_ros.frontend.evidence import Refit
@@ -29,6 +30,25 @@ FIRST_REFIT_WAIT_S = 1.0
 AUTO_WAIT_SHARE = 0.75
 
 
+@dataclass(frozen=True)
+class RefitJob:
+    """What the frame path hands the worker: the observation, whether its frame waits for the whole refit, and the
+    camera's frame interval (seconds) as the frame path saw it."""
+
+    observation: Observation
+    whole_wanted: bool
+    frame_interval: float
+
+
+@dataclass(frozen=True)
+class TimedRefit:
+    """What the worker hands back: the refit, and how long (seconds) its last track half and last whole refit took."""
+
+    refit: Refit
+    track_seconds: float
+    whole_seconds: float
+
+
 class RefitSchedule:
     """The front-end's refits, inline or on a worker, each frame given the refit it may apply."""
 
@@ -37,10 +57,11 @@ class RefitSchedule:
         self._front_end = front_end
         self.worker = (BackgroundRefit(self._fit_in_background, nice=config.refit_nice, duty=config.refit_duty)
                        if config.refit == "background" else None)
-        # How long the worker's last track half and last whole refit took, and the time between the last two
-        # frames' submissions (the camera's frame interval as the worker sees it).
-        self._track_seconds = self._whole_seconds = self._frame_interval = 0.0
+        # The frame path's: the time between the last two frames' submissions (the camera's frame interval).
+        self._frame_interval = 0.0
         self._submitted_at: float | None = None
+        # The worker's own: how long its last track half and last whole refit took.
+        self._track_seconds = self._whole_seconds = 0.0
         self.reset()
 
     def reset(self) -> None:
@@ -50,7 +71,6 @@ class RefitSchedule:
         else:
             self.worker.clear(self._reset_front_end)
         self._applied: tuple[int, int] | None = None
-        self._whole_wanted = -1  # the newest frame that waits for its whole refit
         self._warmed_up = False
 
     def _reset_front_end(self) -> None:
@@ -86,10 +106,12 @@ class RefitSchedule:
         if next_frame_at is None:
             return 0.0, True
         budget = AUTO_WAIT_SHARE * (next_frame_at - time.monotonic())
+        latest = self.worker.latest()
+        track, whole = (0.0, 0.0) if latest is None else (latest.track_seconds, latest.whole_seconds)
         # A wait shorter than a refit takes would end with the same older refit and only make the frame later.
-        if budget >= self._whole_seconds:
+        if budget >= whole:
             return budget, True
-        return (budget, False) if budget >= self._track_seconds else (0.0, True)
+        return (budget, False) if budget >= track else (0.0, True)
 
     def _background(self, observation: Observation, wait: tuple[float, bool]) -> tuple[Refit | None, float]:
         """Submit ``observation`` and take the newest refit done, after waiting up to ``wait`` seconds (the first
@@ -103,39 +125,42 @@ class RefitSchedule:
             whole = (seconds > 0 and whole) or observation.pair is None
             seconds = max(seconds, FIRST_REFIT_WAIT_S)
             self._warmed_up = observation.pair is not None
-        if seconds > 0 and whole:
-            self._whole_wanted = observation.index  # before the submission: the worker fits its dense half
         now = time.monotonic()
         if self._submitted_at is not None:
             self._frame_interval = now - self._submitted_at
         self._submitted_at = now
-        self.worker.submit(observation)
+        self.worker.submit(RefitJob(observation, seconds > 0 and whole, self._frame_interval))
         if seconds <= 0:
-            return self.worker.latest(), 0.0
+            return self._newest(), 0.0
         start = time.perf_counter()
         if whole:
-            self.worker.wait_for(lambda refit: refit.dense_index >= observation.index, seconds)
+            self.worker.wait_for(lambda done: done.refit.dense_index >= observation.index, seconds)
         else:
-            self.worker.wait_for(lambda refit: refit.index >= observation.index, seconds)
+            self.worker.wait_for(lambda done: done.refit.index >= observation.index, seconds)
         waited = time.perf_counter() - start
         raise_worker_error(self.worker)
-        return self.worker.latest(), waited
+        return self._newest(), waited
 
-    def _fit_in_background(self, observation: Observation) -> Refit:
+    def _newest(self) -> Refit | None:
+        """The newest refit the worker has done (None before the first)."""
+        latest = self.worker.latest()
+        return None if latest is None else latest.refit
+
+    def _fit_in_background(self, job: RefitJob) -> TimedRefit:
         """The worker's fit: the track half, handed over at once, then the dense half (track flags a frame younger
         gain more than a dense mask a frame older loses). While whole refits, with the worker's rests
         (``refit_duty``), take longer than the camera's frame interval, only every ``refit_dense_every``-th refit
         and that of a frame that waits for its whole refit fit their dense half."""
-        evidence = self._front_end.evidence
+        evidence, observation = self._front_end.evidence, job.observation
         start = time.perf_counter()
         tracks = evidence.refit_tracks(observation)
         self._track_seconds = time.perf_counter() - start
         self._without_dense += 1
-        behind = self._whole_seconds / self.config.refit_duty > self._frame_interval
-        if behind and self._without_dense < self.config.refit_dense_every and observation.index != self._whole_wanted:
-            return tracks
+        behind = self._whole_seconds / self.config.refit_duty > job.frame_interval
+        if behind and self._without_dense < self.config.refit_dense_every and not job.whole_wanted:
+            return TimedRefit(tracks, self._track_seconds, self._whole_seconds)
         self._without_dense = 0
-        self.worker.hand_over(tracks)
+        self.worker.hand_over(TimedRefit(tracks, self._track_seconds, self._whole_seconds))
         refit = evidence.refit_dense(observation, tracks)
         self._whole_seconds = time.perf_counter() - start
-        return refit
+        return TimedRefit(refit, self._track_seconds, self._whole_seconds)
