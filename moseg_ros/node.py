@@ -76,6 +76,20 @@ def checked_settings(settings: dict[str, Any]) -> dict[str, Any]:
     return settings
 
 
+def declared_settings(node: Node) -> dict[str, Any]:
+    """Declare every parameter on ``node`` and return their values by name, checked (``checked_settings``); a
+    method setting given by its deprecated bare name is taken for every method that has it, with a warning."""
+    for name, (default, descriptor) in PARAMETERS.items():
+        node.declare_parameter(name, default, descriptor)
+    for name, descriptor in DEPRECATED.items():
+        node.declare_parameter(name, None, descriptor)
+    values = {name: node.get_parameter(name).value for name in PARAMETERS}
+    bare = {name: node.get_parameter(name).value for name in DEPRECATED}
+    values.update(nested_values({name: value for name, value in bare.items() if value is not None},
+                                node.get_logger().warning))
+    return checked_settings(values)
+
+
 def input_qos(settings: dict[str, Any]) -> QoSProfile:
     """The QoS of the input subscriptions: ``image_qos`` with ``qos_depth``."""
     depth = settings["qos_depth"]
@@ -116,15 +130,7 @@ class SegmenterNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("segmenter", **kwargs)
-        for name, (default, descriptor) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor)
-        for name, descriptor in DEPRECATED.items():
-            self.declare_parameter(name, None, descriptor)
-        values = {name: self.get_parameter(name).value for name in PARAMETERS}
-        bare = {name: self.get_parameter(name).value for name in DEPRECATED}
-        values.update(nested_values({name: value for name, value in bare.items() if value is not None},
-                                    self.get_logger().warning))
-        self.settings = checked_settings(values)
+        self.settings = declared_settings(self)
         self.pipeline = Pipeline(config_from_values({name: self.settings[name] for name in PIPELINE_NAMES}),
                                  live=True)
 
