@@ -66,8 +66,19 @@ def ork_inliers_relative(residuals: np.ndarray, reference: np.ndarray, ratio: fl
 
 
 def own_residual_reference(block: ResidualBlock, noise_floor: float, energy_fraction: float = 0.0) -> np.ndarray:
-    """Each item's residual under its own model in the block, at least noise_floor (the floor without one)
-    and at least energy_fraction × the item's data energy (when the block has energies)."""
+    """Reference residual of each item of a block: its residual under its own model, bounded from below.
+
+    ref_i = max(r_i,own(i), noise_floor, energy_fraction · energy_i); the floor alone for an item without a
+    (finite) residual under its own model; the energy term only when the block has energies.
+
+    Args:
+        block: residual block of n items (``owners`` names each hypothesis' item).
+        noise_floor: smallest reference, in the units of the residuals.
+        energy_fraction: the reference is also at least this fraction of the item's data energy.
+
+    Returns:
+        (n,) float64 references.
+    """
     floor = np.full(len(block.items), float(noise_floor))
     if block.energy is not None and energy_fraction > 0:
         floor = np.fmax(floor, energy_fraction * block.energy)
@@ -132,6 +143,9 @@ def ordered_residual_kernel(blocks: Sequence[ResidualBlock], n_items: int, inlie
 
 def sparsify_entropy(affinity: np.ndarray, alpha: float) -> np.ndarray:
     """Adaptive epsilon-neighbour sparsification by the row entropy (Lai et al. 2017).
+
+    p_ij = σ_ij / Σ_j σ_ij with σ_ij = max_j a_ij^α − a_ij^α; entry ij is kept (m_ij = 1) when
+    log p_ij < Σ_j p_ij log p_ij (the row's negative entropy); the result is (M + Mᵀ)/2 ⊙ A.
 
     Args:
         affinity: (N, N) non-negative symmetric affinity.

@@ -26,7 +26,21 @@ from moseg_ros.core.robust import fundamental_polished, homography_ransac
 
 @dataclass(frozen=True)
 class BaselineConfig:
-    """Settings of the epipolar baseline (pixels are at the working resolution)."""
+    """Settings of the epipolar baseline (pixels are at the working resolution).
+
+    Attributes:
+        grid_step: correspondences for the fit are read every grid_step pixels.
+        fb_max_px: forward-backward tolerance, fb_max_px + fb_max_fraction · |flow| (pixels) ...
+        fb_max_fraction: ... so large flows may carry proportionally larger round-trip error.
+        ransac_threshold_px: RANSAC inlier threshold of F and H (pixels).
+        residual_threshold_px: smallest per-pixel residual threshold (pixels).
+        residual_noise_factor: threshold = max(residual_threshold_px, factor · 1.4826 · median inlier distance).
+        min_parallax_px: median flow below which the camera stands still (the dominant motion is the identity).
+        min_inliers: fewest samples (and RANSAC inliers of F) for a fit.
+        homography_preference: H replaces F when its inliers are at least this share of F's.
+        gric_min_sigma_px: smallest noise σ (pixels) in Torr's GRIC.
+        border_fraction: per-pixel evidence only where the flow lands this share of the width inside the image.
+    """
 
     grid_step: int = 10
     fb_max_px: float = 1.0
@@ -65,10 +79,20 @@ class EpipolarResidual:
 
 
 def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """(N,) Sampson distance in pixels of N correspondences (matches^T F points = 0) under one F.
+    """Sampson distance in pixels of correspondences under one fundamental matrix.
 
-    The one-model case of geometry.sampson_distance, written out in float32: it runs on every pixel of a
-    frame, where the batched form's homogeneous copies cost more than the arithmetic.
+    d(x, x') = |x'ᵀ F x| / sqrt((F x)₁² + (F x)₂² + (Fᵀ x')₁² + (Fᵀ x')₂²)
+
+    The one-model case of geometry.sampson_distance (its square root), written out in float32: it runs on every
+    pixel of a frame, where the batched form's homogeneous copies cost more than the arithmetic.
+
+    Args:
+        fundamental: (3, 3) F with matchesᵀ F points = 0.
+        points: (N, 2) points x.
+        matches: (N, 2) their correspondences x'.
+
+    Returns:
+        (N,) float32 distances in pixels.
     """
     F = fundamental.astype(np.float32)
     x, y = points[:, 0].astype(np.float32, copy=False), points[:, 1].astype(np.float32, copy=False)
@@ -81,8 +105,21 @@ def sampson_pixels(fundamental: np.ndarray, points: np.ndarray, matches: np.ndar
 
 
 def homography_distance(homography: np.ndarray, points: np.ndarray, matches: np.ndarray) -> np.ndarray:
-    """(N,) root-mean symmetric transfer error in pixels of N correspondences (matches ~ H points): the one-model
-    case of geometry.homography_transfer_error (HZ eq. 4.7), written out in float32 as ``sampson_pixels`` is."""
+    """Root-mean symmetric transfer error in pixels of correspondences under one homography.
+
+    d(x, x') = sqrt((||x' − H x||² + ||x − H⁻¹ x'||²) / 2)
+
+    The one-model case of geometry.homography_transfer_error (HZ eq. 4.7), written out in float32 as
+    ``sampson_pixels`` is.
+
+    Args:
+        homography: (3, 3) invertible H with matches ~ H points.
+        points: (N, 2) points x.
+        matches: (N, 2) their correspondences x'.
+
+    Returns:
+        (N,) float32 distances in pixels.
+    """
     squared = _transferred(homography, points, matches) + _transferred(np.linalg.inv(homography), matches, points)
     return np.sqrt(np.float32(0.5) * squared)
 
@@ -191,10 +228,21 @@ def dynamic_instances(instances: np.ndarray, moving: np.ndarray, valid: np.ndarr
 
 def instance_shares(instances: np.ndarray, moving: np.ndarray,
                     valid: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per positive instance id of the (H, W) ``instances`` (``dynamic_instances``' arguments): its (K,) int32
-    sorted ids, the (K,) share of each one's ``valid`` pixels that are ``moving``, and the (K,) count of its
-    valid pixels. Ids up to ``DENSE_IDS`` are counted in a table (an id in it but not in the map has no valid
-    pixels); larger ones by rank among the ids present."""
+    """Share of each instance's valid pixels that move, and the count of its valid pixels.
+
+    share_k = |valid ∩ moving ∩ instance k| / max(|valid ∩ instance k|, 1)
+
+    Ids up to ``DENSE_IDS`` are counted in a table (an id in it but not in the map has no valid pixels);
+    larger ones by rank among the ids present.
+
+    Args:
+        instances: (H, W) int ids, 0 or below = background (never counted).
+        moving: (H, W) bool per-pixel evidence.
+        valid: (H, W) bool, where the evidence is reliable.
+
+    Returns:
+        ids (K,) int32 sorted positive ids; share (K,) float64; valid count (K,) int.
+    """
     ids = instances.ravel()
     counted = valid.ravel() & (ids > 0)  # ids <= 0 are background, never counted
     present = None

@@ -30,7 +30,14 @@ _DENSE_MAX = 300
 
 
 def normalized_affinity(affinity: np.ndarray) -> np.ndarray:
-    """S = D^-1/2 A D^-1/2 (isolated items get zero rows)."""
+    """Symmetrically normalized affinity S = D^-1/2 A D^-1/2, D = diag(Σ_j a_ij).
+
+    Args:
+        affinity: (N, N) finite, non-negative affinity A.
+
+    Returns:
+        (N, N) float64 S; isolated items (zero degree) get zero rows.
+    """
     a = np.asarray(affinity, dtype=np.float64)
     if a.ndim != 2 or a.shape[0] != a.shape[1]:
         raise ValueError(f"affinity must be square, got {a.shape}")
@@ -53,6 +60,9 @@ def top_eigenvectors(sym: np.ndarray, k: int, low_rank: np.ndarray | None = None
         k: number of eigenvectors.
         low_rank: optional (N, r) factor of a symmetric low-rank term.
         weight: its weight.
+
+    Returns:
+        (N, k) eigenvectors, eigenvalues descending.
     """
     n = sym.shape[0]
     if n <= _DENSE_MAX or k >= n - 1:
@@ -82,12 +92,22 @@ def _dense_top_eigenvectors(sym: np.ndarray, k: int, low_rank: np.ndarray | None
 
 
 def row_normalize(u: np.ndarray) -> np.ndarray:
-    """Rows scaled to unit length (zero rows stay zero)."""
+    """Rows of an (N, d) matrix scaled to unit length, u_i / ||u_i|| -> (N, d) (zero rows stay zero)."""
     return u / np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
 
 
 def kmeans(points: np.ndarray, k: int, rng: np.random.Generator, *, n_init: int = 10) -> np.ndarray:
-    """Best of n_init k-means++ runs (scipy kmeans2) by within-cluster sum of squares -> (N,) labels."""
+    """Best of n_init k-means++ runs (scipy kmeans2) by within-cluster sum of squares Σ_i ||p_i − c_(label i)||².
+
+    Args:
+        points: (N, d) points.
+        k: number of clusters.
+        rng: random generator for the seeds.
+        n_init: restarts.
+
+    Returns:
+        (N,) int labels in [0, k) (a cluster may be empty).
+    """
     best, best_cost = None, np.inf
     for _ in range(n_init):
         with warnings.catch_warnings():
@@ -106,7 +126,17 @@ def _check_k(n: int, k: int) -> None:
 
 
 def spectral_clustering(affinity: np.ndarray, k: int, rng: np.random.Generator, *, n_init: int = 10) -> np.ndarray:
-    """Normalized spectral clustering of an (N, N) affinity into k clusters -> (N,) labels in [0, k)."""
+    """Normalized spectral clustering (Ng, Jordan, Weiss 2001): k-means on the row-normalized top-k
+    eigenvectors of S = D^-1/2 A D^-1/2.
+
+    Args:
+        affinity: (N, N) non-negative symmetric affinity.
+        k: number of clusters, in [1, N].
+        rng: random generator for k-means.
+
+    Returns:
+        (N,) int labels in [0, k).
+    """
     s = normalized_affinity(affinity)
     _check_k(s.shape[0], k)
     if k == 1:
@@ -116,13 +146,18 @@ def spectral_clustering(affinity: np.ndarray, k: int, rng: np.random.Generator, 
 
 def coregularized_embedding(affinities: Sequence[np.ndarray], k: int, *, lam: float = 0.01,
                             n_iter: int = 5) -> list[np.ndarray]:
-    """Co-regularized spectral embeddings, one (N, k) matrix per view (Kumar et al. 2011, pairwise).
+    """Co-regularized spectral embeddings, one per view (Kumar et al. 2011, pairwise).
+
+    U_v = top-k eigenvectors of S_v + λ Σ_{w≠v} U_w U_wᵀ, alternated over the views n_iter times.
 
     Args:
         affinities: V (N, N) affinities of the same items.
         k: embedding dimension (number of clusters).
         lam: co-regularization weight λ.
         n_iter: alternation rounds over all views.
+
+    Returns:
+        V (N, k) embeddings U_v (the plain spectral embedding for a single view).
     """
     if len(affinities) == 0:
         raise ValueError("need at least one affinity")
@@ -144,7 +179,19 @@ def coregularized_embedding(affinities: Sequence[np.ndarray], k: int, *, lam: fl
 
 def coregularized_spectral_clustering(affinities: Sequence[np.ndarray], k: int, rng: np.random.Generator, *,
                                       lam: float = 0.01, n_iter: int = 5, n_init: int = 10) -> np.ndarray:
-    """Cluster items seen in several views into k clusters -> (N,) labels in [0, k)."""
+    """Cluster items seen in several views into k clusters: k-means on the row-normalized concatenation of
+    the row-normalized co-regularized embeddings (``coregularized_embedding``).
+
+    Args:
+        affinities: V (N, N) affinities of the same items.
+        k: number of clusters.
+        rng: random generator for k-means.
+        lam, n_iter: as ``coregularized_embedding``.
+        n_init: k-means restarts.
+
+    Returns:
+        (N,) int labels in [0, k).
+    """
     n = np.asarray(affinities[0]).shape[0] if len(affinities) else 0
     if k == 1 and n > 0:
         return np.zeros(n, dtype=np.int64)
@@ -215,7 +262,15 @@ def coregularized_clustering_unknown_k(affinities: Sequence[np.ndarray], rng: np
 
 
 def affinity_spectrum(affinities: Sequence[np.ndarray], n_values: int) -> np.ndarray:
-    """The n_values largest eigenvalues (descending) of the mean normalized affinity of the views."""
+    """Largest eigenvalues of the mean normalized affinity (1/V) Σ_v D_v^-1/2 A_v D_v^-1/2 of the views.
+
+    Args:
+        affinities: V (N, N) affinities of the same items.
+        n_values: how many eigenvalues (at most N).
+
+    Returns:
+        (min(n_values, N),) eigenvalues, descending.
+    """
     s = sum(normalized_affinity(a) for a in affinities) / len(affinities)
     n = s.shape[0]
     n_values = min(n_values, n)
@@ -235,6 +290,14 @@ def estimate_n_motions(affinities: Sequence[np.ndarray], *, k_min: int = 2, k_ma
     well-separated motions give K eigenvalues near 1 and a drop after them. λ_{N+1} is taken as 0, so K = N
     (every item alone) is possible. Gaps within ``tie_tolerance`` of the largest count as ties, resolved
     towards more motions (two views that disagree about an object give exactly such a tie).
+
+    Args:
+        affinities: V (N, N) affinities of the same items.
+        k_min, k_max: range of K (k_max capped at N).
+        tie_tolerance: gaps this close to the largest count as ties.
+
+    Returns:
+        K.
     """
     n = np.asarray(affinities[0]).shape[0]
     k_max = min(k_max, n)
@@ -259,7 +322,15 @@ def _confusion(pred: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndar
 
 
 def match_clusters(pred: np.ndarray, truth: np.ndarray) -> dict[int, int]:
-    """Best one-to-one map predicted cluster -> true label (maximum agreement, Hungarian algorithm)."""
+    """Best one-to-one map predicted cluster -> true label (maximum agreement, Hungarian algorithm).
+
+    Args:
+        pred: (N,) predicted cluster of each item.
+        truth: (N,) true label of each item.
+
+    Returns:
+        {cluster: label} for the matched clusters (unmatched clusters are left out).
+    """
     confusion, p_ids, t_ids = _confusion(pred, truth)
     rows, cols = linear_sum_assignment(confusion, maximize=True)
     return {int(p_ids[r]): int(t_ids[c]) for r, c in zip(rows, cols)}
@@ -268,7 +339,15 @@ def match_clusters(pred: np.ndarray, truth: np.ndarray) -> dict[int, int]:
 def misclassification_rate(pred: np.ndarray, truth: np.ndarray) -> float:
     """Fraction of items misclassified under the best one-to-one matching of clusters to labels.
 
-    Items of clusters left unmatched (more clusters than labels) count as errors.
+    error = 1 − Σ_(c, l) matched |c ∩ l| / N; items of clusters left unmatched (more clusters than labels)
+    count as errors.
+
+    Args:
+        pred: (N,) predicted cluster of each item.
+        truth: (N,) true label of each item.
+
+    Returns:
+        Error rate in [0, 1].
     """
     confusion, _, _ = _confusion(pred, truth)
     rows, cols = linear_sum_assignment(confusion, maximize=True)

@@ -18,10 +18,22 @@ MIN_WORKING_SIDE = 32
 
 
 def shrink_scale(height: int, width: int, max_width: int, max_pixels: int = 0, min_side: int = 0) -> float:
-    """The scale (at most 1) that shrinks a ``height`` x ``width`` frame to at most ``max_width`` pixels wide and,
-    when ``max_pixels`` > 0, at most that many pixels in all (to the rounding of its sides), but no side below
-    ``min_side`` that is at least that long. A width alone lets a frame's cost grow with its height: a 4:3 camera
-    at 640 px wide holds 2.5 times the pixels of a 10:3 street camera's frame."""
+    """Scale (at most 1) that shrinks a frame to a width and pixel budget without a side below ``min_side``.
+
+    s = min(1, max(min(max_width / W, sqrt(max_pixels / (H W))), min_side / H, min_side / W))
+
+    A pixel budget as well as a width, since a width alone lets a frame's cost grow with its height (a 4:3
+    frame holds 2.5 times the pixels of a 10:3 one of the same width).
+
+    Args:
+        height, width: frame size H, W in pixels.
+        max_width: largest width after scaling.
+        max_pixels: largest H W after scaling (to the rounding of the sides); 0 = no budget.
+        min_side: no side that is at least this long is shrunk below it.
+
+    Returns:
+        The scale s.
+    """
     scale = max_width / width
     if max_pixels > 0:
         scale = min(scale, float(np.sqrt(max_pixels / (height * width))))
@@ -58,24 +70,47 @@ def forward_backward_error(forward: np.ndarray, backward: np.ndarray) -> np.ndar
 
 
 def lands_inside(flow: np.ndarray, margin: float) -> np.ndarray:
-    """(H, W) bool: pixels whose ``flow`` (H, W, 2) lands at least ``margin`` pixels inside the image.
+    """Pixels whose flow lands at least ``margin`` pixels inside the image.
 
     Near the target's border a dense flow's patches are clipped and its coarse levels extrapolate, so the
     matches that land there are guesses (and content entering the view has no match at all).
+
+    Args:
+        flow: (H, W, 2) flow.
+        margin: pixels.
+
+    Returns:
+        (H, W) bool.
     """
     return away_from_border(pixel_grid(*flow.shape[:2]) + flow, flow.shape[:2], margin)
 
 
 def away_from_border(points: np.ndarray, shape: tuple[int, int], margin: float) -> np.ndarray:
-    """(...) bool: which of the (..., 2) points (x, y) lie at least ``margin`` pixels inside an image of ``shape``
-    (H, W)."""
+    """Which points lie at least ``margin`` pixels inside an image: margin <= x <= W − 1 − margin, same for y.
+
+    Args:
+        points: (..., 2) points (x, y).
+        shape: (H, W) of the image.
+        margin: pixels.
+
+    Returns:
+        (...) bool.
+    """
     x, y = points[..., 0], points[..., 1]
     return (x >= margin) & (x <= shape[1] - 1 - margin) & (y >= margin) & (y <= shape[0] - 1 - margin)
 
 
 def pulled_forward(image: np.ndarray, flow: np.ndarray, border: int) -> np.ndarray:
-    """(h, w) ``image`` of the frame before, at this frame: each pixel takes the value (nearest) where the (h, w, 2)
-    backward ``flow`` (this frame -> the one before) lands, ``border`` where it lands outside."""
+    """An image of the frame before, carried to this frame along the backward flow: out(x) = image(x + flow(x)).
+
+    Args:
+        image: (h, w) image of the frame before.
+        flow: (h, w, 2) backward flow, this frame -> the one before.
+        border: value where the flow lands outside the image.
+
+    Returns:
+        (h, w) image, same dtype, nearest-neighbour sampled.
+    """
     landing = pixel_grid(*flow.shape[:2]) + flow
     # One (h, w, 2) map: its two channels passed apart are strided views that OpenCV copies first (twice the time).
     return cv2.remap(image, landing, None, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=border)

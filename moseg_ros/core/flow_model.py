@@ -53,7 +53,14 @@ class FlowStats:
 
 
 def image_frame(image_size: tuple[int, int]) -> tuple[np.ndarray, float]:
-    """Centre (pixels) and scale of the normalized frame of a (width, height) image."""
+    """Centre (pixels) and scale of the normalized frame of an image.
+
+    Args:
+        image_size: (width, height) W, H, both positive.
+
+    Returns:
+        centre (2,) ((W − 1)/2, (H − 1)/2) and scale max(W, H)/2 (pixels per unit).
+    """
     width, height = image_size
     if width <= 0 or height <= 0:
         raise ValueError(f"image_size must be positive (width, height), got {image_size}")
@@ -133,8 +140,12 @@ def fit_quadratic_flow(stats: FlowStats, *, min_vectors: int = 12,
     A group is degenerate (``valid`` False, parameters 0) with fewer than ``min_vectors`` vectors or when its
     normal matrix is ill-conditioned (smallest/largest eigenvalue < ``cond_tol``: e.g. all vectors on a line).
 
+    (Σ φφᵀ) C = Σ φ (u, v)ᵀ for the (6, 2) coefficients C of each group, in the scaled frame.
+
     Args:
         stats: statistics with group axis (..., G).
+        min_vectors: fewest vectors of a group for a model.
+        cond_tol: smallest eigenvalue ratio of a group's normal matrix.
 
     Returns:
         params (..., G, 12) as (a, b, c, d, e, f, g, h, i, j, k, l) in pixel units relative to the centre;
@@ -151,7 +162,9 @@ def fit_quadratic_flow(stats: FlowStats, *, min_vectors: int = 12,
 
 
 def flow_residual_matrix(stats: FlowStats, params: np.ndarray) -> np.ndarray:
-    """Mean squared error of every group's flow vectors under every model.
+    """Mean squared error of every group's flow vectors under every model, from the statistics alone.
+
+    MSE_gm = (Σ_g |uv|² − 2 tr(P_mᵀ Σ_g φ uvᵀ) + tr(P_mᵀ Σ_g φφᵀ P_m)) / n_g, P_m the (6, 2) coefficients of m.
 
     Args:
         stats: statistics with group axis (..., G).
@@ -174,7 +187,16 @@ def flow_residual_matrix(stats: FlowStats, params: np.ndarray) -> np.ndarray:
 
 
 def predict_flow(params: np.ndarray, xy: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-    """Flow of models at pixel positions: params (..., 12), xy (N, 2) -> (..., N, 2)."""
+    """Flow of quadratic models at pixel positions: (u, v) = (φ(x − c) · p[:6], φ(x − c) · p[6:]).
+
+    Args:
+        params: (..., 12) models in pixel units relative to the image centre c.
+        xy: (N, 2) pixel positions (x, y).
+        image_size: (width, height).
+
+    Returns:
+        (..., N, 2) flow vectors in pixels.
+    """
     centre, _ = image_frame(image_size)
     phi = quadratic_basis(np.asarray(xy, dtype=np.float64) - centre)
     params = np.asarray(params, dtype=np.float64)

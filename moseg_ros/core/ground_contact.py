@@ -98,10 +98,11 @@ def foot_pixels(labels: np.ndarray, clearance: int) -> tuple[np.ndarray, np.ndar
     """Pixels of objects (id > 0) whose next ``clearance`` rows below are background and inside the image.
 
     Args:
-        labels: (H, W) int instance ids.
+        labels: (H, W) int instance ids (0 = background).
+        clearance: background rows required below a foot pixel.
 
     Returns:
-        (rows, cols) of the foot pixels.
+        rows (M,) and cols (M,) int of the foot pixels (as np.nonzero).
     """
     height = labels.shape[0]
     foot = np.zeros(labels.shape, dtype=bool)
@@ -138,6 +139,9 @@ def _ground_flow_at_foot(rows: np.ndarray, cols: np.ndarray, flow: np.ndarray, h
 def contact_errors(labels: np.ndarray, flow: np.ndarray, homography: np.ndarray, object_ids: np.ndarray,
                    config: GroundConfig) -> tuple[np.ndarray, np.ndarray]:
     """Per object, how far its flow above its foot is from the ground's flow at the foot, in one pair.
+
+    e = median |u(x − d) − u_g(x)| over foot pixels x and the rows d of ``probe_rows`` on the same object,
+    s = median |u_g(x)|, u_g the ground's flow carried up from ``ground_rows`` below (module docstring).
 
     Args:
         labels: (H, W) int instance ids of the first frame; flow: (H, W, 2) forward flow.

@@ -61,10 +61,19 @@ def frame_pairs(n_frames: int, gap: int) -> list[tuple[int, int]]:
 
 
 def sample_minimal_sets(n_points: int, sample_size: int, n_samples: int, rng: np.random.Generator) -> np.ndarray:
-    """Random samples of distinct points, uniform over subsets: (n_samples, sample_size) indices in [0, n_points).
+    """Random samples of distinct points, uniform over subsets.
 
     Large sets draw with replacement and redraw the few samples that repeat a point (cheaper than a random
     permutation per sample); small sets take the sample_size smallest of random keys.
+
+    Args:
+        n_points: points to draw from (at least sample_size).
+        sample_size: points per sample.
+        n_samples: number of samples.
+        rng: random generator.
+
+    Returns:
+        (n_samples, sample_size) int indices in [0, n_points), distinct within a row.
     """
     if n_points < sample_size:
         raise ValueError(f"cannot draw samples of {sample_size} distinct points from {n_points}")
@@ -110,6 +119,9 @@ def trajectory_hypotheses(tracks_xy: np.ndarray, visible: np.ndarray, model: str
         gap: frame gap of a pair.
         n_hypotheses: hypotheses per pair.
         rng: random generator.
+        oversample: draw this many times n_hypotheses samples, to make up for degenerate ones.
+        groups: optional (N,) int group of each trajectory (a first clustering), for guided samples.
+        guided_fraction: share in [0, 1] of the samples drawn inside one group (needs ``groups``).
 
     Returns:
         One ResidualBlock per usable pair: items (n,), residuals (n, <= n_hypotheses) (Sampson distance for F,
@@ -281,8 +293,17 @@ def flow_samples(labels: np.ndarray, flows: np.ndarray, step: int) -> tuple[np.n
 
 
 def thinned_groups(groups: np.ndarray, n_groups: int, max_members: int) -> np.ndarray:
-    """``groups`` ((N,) int in [0, n_groups), negative = none) with each group of more than ``max_members``
-    members thinned to every s-th of them in their order, s = ceil(count / max_members); the rest set to -1."""
+    """Groups thinned to at most ``max_members`` members each: every s-th member in order is kept,
+    s = ceil(count / max_members); the others are set to -1.
+
+    Args:
+        groups: (N,) int group of each member in [0, n_groups), negative = none.
+        n_groups: number of groups.
+        max_members: most members a group keeps.
+
+    Returns:
+        (N,) int groups, -1 for the members dropped.
+    """
     counts = np.bincount(groups[groups >= 0], minlength=n_groups)
     order = np.argsort(groups, kind="stable")
     ranked = groups[order]

@@ -43,17 +43,19 @@ class ObjectFlowConfig:
 
 
 def fit_affine_flows(xy: Sequence[np.ndarray], uv: Sequence[np.ndarray]) -> list[np.ndarray | None]:
-    """Robust least-squares affine flow models of several sets of points at once (one fit and one refit for
-    all, as a frame's groups and their backgrounds need; the sets are stacked, not padded to the largest, whose
-    background may hold a hundred times a small group's tracks).
+    """Robust least-squares affine flow models of several sets of points at once.
+
+    uv ≈ [x, y, 1] · A, fitted by least squares, then refitted once without the vectors whose residual exceeds
+    max(2 × the set's median residual, 0.5 px). One fit and one refit serve all sets, as a frame's groups and
+    their backgrounds need; the sets are stacked, not padded to the largest (a background may hold a hundred
+    times a small group's tracks).
 
     Args:
         xy: S arrays (N_s, 2) of positions (x, y), each N_s >= 1.
         uv: S arrays (N_s, 2) of the flow vectors at them.
 
     Returns:
-        S models (3, 2) A with uv ≈ [x, y, 1] · A, each refitted once on the vectors whose residual is at most
-        max(2 × its set's median residual, 0.5 px) when three or more remain; None for a set with fewer than
+        S models (3, 2) A (refitted only when three or more vectors remain); None for a set with fewer than
         three points or (near) collinear ones.
     """
     counts = np.array([len(points) for points in xy])
@@ -103,8 +105,18 @@ def _stacked_medians(values: np.ndarray, of_set: np.ndarray, starts: np.ndarray,
 
 
 def affine_flow_error(params: np.ndarray, flow: np.ndarray, x0: int, y0: int) -> np.ndarray:
-    """(h, w) distance between ``flow`` (h, w, 2), the crop of a larger flow field whose top-left pixel is
-    (x0, y0), and the affine model ``params`` (3, 2) at each of its pixels."""
+    """Distance between a crop of a flow field and an affine flow model at each of its pixels.
+
+    e(x, y) = ||flow(x, y) − [x, y, 1] · A||, (x, y) in the full field's pixels.
+
+    Args:
+        params: (3, 2) affine model A.
+        flow: (h, w, 2) crop of a larger flow field.
+        x0, y0: the crop's top-left pixel in the larger field.
+
+    Returns:
+        (h, w) float32 distances in pixels.
+    """
     h, w = flow.shape[:2]
     a = params.astype(np.float32)
     x = np.arange(x0, x0 + w, dtype=np.float32)[None, :]

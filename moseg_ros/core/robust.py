@@ -25,8 +25,17 @@ def _checked(model: np.ndarray | None, inliers: np.ndarray | None) -> Fit:
 
 def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float,
                        confidence: float = 0.999, max_iterations: int = 1000) -> Fit:
-    """F with x2^T F x1 = 0 and its (N,) bool inliers, robustly fitted to (N, 2) float32/64 correspondences;
-    (None, None) when OpenCV finds no model or fails on the data."""
+    """Robust fit of a fundamental matrix with x2ᵀ F x1 = 0 (cv2.findFundamentalMat).
+
+    Args:
+        x1, x2: (N, 2) float32/64 correspondences.
+        method: OpenCV method flag (cv2.FM_RANSAC, cv2.USAC_MAGSAC, ...).
+        threshold_px: inlier threshold (pixels).
+        confidence, max_iterations: passed to OpenCV.
+
+    Returns:
+        F (3, 3) and inliers (N,) bool; (None, None) when OpenCV finds no model or fails on the data.
+    """
     try:
         model, inliers = cv2.findFundamentalMat(x1, x2, method, threshold_px, confidence, max_iterations)
     except cv2.error:
@@ -36,9 +45,10 @@ def fundamental_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px
 
 def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, confidence: float = 0.999,
                          max_iterations: int = 100, rounds: int = 2, min_share: float = 0.7) -> Fit:
-    """F with x2^T F x1 = 0 and its (N,) bool inliers (Sampson distance at most ``threshold_px``): OpenCV's plain
-    seven-point RANSAC, then up to ``rounds`` least-squares (normalised eight-point) refits on the inliers, each
-    kept while it holds no fewer of them; (None, None) as ``fundamental_ransac``.
+    """Fundamental matrix with x2ᵀ F x1 = 0 by plain RANSAC polished by least-squares refits on its inliers.
+
+    OpenCV's plain seven-point RANSAC, then up to ``rounds`` least-squares (normalised eight-point) refits on
+    the inliers (Sampson distance at most ``threshold_px``), each kept while it holds no fewer of them.
 
     The refits are the local optimisation that USAC_FAST and MAGSAC++ run, without their cost, which grows with the
     number of points rather than of iterations: on a frame's dense-flow samples or tracks, mostly inliers, this
@@ -46,7 +56,18 @@ def fundamental_polished(x1: np.ndarray, x2: np.ndarray, threshold_px: float, co
     Plain RANSAC has no early rejection of bad samples, though, and the iterations it needs grow steeply with the
     outliers' share: it gets ``max_iterations`` (enough while ``min_share`` of the points are inliers), and data
     where it finds fewer inliers than that, or no model, go to MAGSAC++ at the same threshold, whose cost stays
-    bounded."""
+    bounded.
+
+    Args:
+        x1, x2: (N, 2) float32/64 correspondences.
+        threshold_px: inlier threshold on the Sampson distance (pixels).
+        confidence, max_iterations: of the plain RANSAC.
+        rounds: most refits.
+        min_share: inlier share below which MAGSAC++ is run instead.
+
+    Returns:
+        F (3, 3) and inliers (N,) bool; (None, None) as ``fundamental_ransac``.
+    """
     model, inliers = fundamental_ransac(x1, x2, cv2.FM_RANSAC, threshold_px, confidence, max_iterations)
     if model is None or inliers.mean() < min_share:
         model, _ = fundamental_ransac(x1, x2, cv2.USAC_MAGSAC, threshold_px)
@@ -69,8 +90,17 @@ def _within(fundamental: np.ndarray, x1: np.ndarray, x2: np.ndarray, threshold_p
 
 def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px: float,
                       max_iterations: int = 2000, confidence: float = 0.995) -> Fit:
-    """H with x2 ~ H x1 and its (N,) bool inliers, robustly fitted to (N, 2) float32/64 correspondences;
-    (None, None) when OpenCV finds no model or fails on the data. The defaults are OpenCV's."""
+    """Robust fit of a homography with x2 ~ H x1 (cv2.findHomography; the defaults are OpenCV's).
+
+    Args:
+        x1, x2: (N, 2) float32/64 correspondences.
+        method: OpenCV method flag (cv2.RANSAC, cv2.USAC_FAST, ...).
+        threshold_px: inlier threshold on the transfer error (pixels).
+        max_iterations, confidence: passed to OpenCV.
+
+    Returns:
+        H (3, 3) and inliers (N,) bool; (None, None) when OpenCV finds no model or fails on the data.
+    """
     try:
         model, inliers = cv2.findHomography(x1, x2, method, threshold_px, None, max_iterations, confidence)
     except cv2.error:
@@ -79,11 +109,17 @@ def homography_ransac(x1: np.ndarray, x2: np.ndarray, method: int, threshold_px:
 
 
 def row_medians(values: np.ndarray) -> np.ndarray:
-    """(N,) the median of each row of (N, P) ``values``, NaN ignored (NaN for a row without a number).
+    """Median of each row, NaN ignored.
 
     The same numbers as ``np.nanmedian(values, axis=1)`` (the mean of the two middle values of an even count),
     from one sort: for short rows NumPy's nanmedian goes through masked arrays, several times slower, and the
     refit takes about four of these a frame while holding the GIL the frame path needs.
+
+    Args:
+        values: (N, P) values, NaN = missing.
+
+    Returns:
+        (N,) medians; NaN for a row without a number.
     """
     if values.shape[1] == 0:
         return np.full(values.shape[0], np.nan)

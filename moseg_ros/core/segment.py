@@ -196,7 +196,20 @@ def _view_affinities(blocks: dict[str, list[hypotheses.ResidualBlock]], views: t
 def object_residual_blocks(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray,
                            tracks_visible: np.ndarray, object_ids: np.ndarray, views: tuple[str, ...],
                            config: SegmentConfig) -> dict[str, list[hypotheses.ResidualBlock]]:
-    """Per-view residual blocks of the objects (item k = object_ids[k])."""
+    """Per-view residual blocks of the objects (item k = object_ids[k]).
+
+    Args:
+        labels: (F, H, W) int per-frame instance ids.
+        flows: (F-1, H, W, 2) forward flow between consecutive frames.
+        tracks_xy: (N, F, 2) trajectory positions (x, y) in pixels.
+        tracks_visible: (N, F) bool.
+        object_ids: (K,) sorted ids that are items.
+        views: subset of ("epipolar", "flow").
+        config: settings.
+
+    Returns:
+        {view: residual blocks} (``hypotheses.object_epipolar_residuals``, ``hypotheses.object_flow_residuals``).
+    """
     blocks = {}
     if "epipolar" in views:
         owner = track_objects(labels, tracks_xy, tracks_visible, object_ids)
@@ -217,19 +230,23 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
     """Group the objects of a window by motion and say which move independently of the camera (the paper).
 
     Items are the instance ids present in ``labels`` plus the background pseudo-object 0 (always item 0);
-    each trajectory belongs to the id it falls in most often (majority vote over its visible frames).
+    each trajectory belongs to the id it falls in most often over its visible frames.
+
     Views: "epipolar" (an eight-point F per object per frame pair (m, m + gap); residual = median Sampson
     distance of an object's trajectories) and "flow" (a quadratic flow model per object per consecutive pair
     on a grid of flow vectors; residual = mean squared error). Objects with fewer than ``min_tracks``
     trajectories (or ``min_flow_vectors`` vectors) in a pair get no model there but are still scored.
-    Per view an ORK affinity: an object's inliers are the models within ``inlier_ratio`` of its residual
-    under its own model (not below a noise floor; for flow not below ``flow_energy_fraction`` of its mean
-    squared flow). An object without data in a view takes its row from the other view (or from the
-    background, confidence 0, if no view saw it). The views are fused by co-regularized spectral clustering;
-    K comes from the eigengap of the mean normalized affinity (K = 1 possible: nothing moves; ties towards
-    more motions) unless given. The background cluster is the one holding object 0; every object outside it
-    is dynamic, except that objects standing on a visible ground plane are decided by the ground-contact
-    test (core/ground_contact.py; ``config.ground_contact``, None = the paper alone): moving exactly when their
+
+    Per view an ORK affinity; an object's inliers are the models m with
+
+        r_km <= inlier_ratio · max(r_k,own, floor, flow_energy_fraction · mean |uv|²)   (energy term: flow only).
+
+    An object without data in a view takes its row from the other view (or from the background, confidence
+    0, if no view saw it). The views are fused by co-regularized spectral clustering; K comes from the
+    eigengap of the mean normalized affinity (K = 1 possible: nothing moves; ties towards more motions)
+    unless given. The background cluster is the one holding object 0; every object outside it is dynamic,
+    except that objects standing on a visible ground plane are decided by the ground-contact test
+    (core/ground_contact.py; ``config.ground_contact``, None = the paper alone): moving exactly when their
     contact score exceeds 1. The background pseudo-object spans ground, facades and sky at every depth, so no
     one flow model describes it and the flow view alone takes depth for motion; the ground plane gives the
     depth at each object's foot: with the test far more of the moving objects and fewer of the static ones are
@@ -254,7 +271,7 @@ def segment_objects(labels: np.ndarray, flows: np.ndarray, tracks_xy: np.ndarray
         rng: random generator for k-means.
 
     Returns:
-        ObjectSegmentation.
+        ObjectSegmentation of the K items.
     """
     config = config or SegmentConfig()
     rng = rng if rng is not None else np.random.default_rng(0)

@@ -24,9 +24,16 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 
 
 class PairEvidence(NamedTuple):
-    """One frame pair's evidence per track: ``distance`` as ``pair_residual``; given a camera matrix and a
-    non-degenerate F, ``signed`` (``signed_parallax``), ``ground`` (``decided_ratios``), ``footing``
-    (``footing_excess``) and ``shortfall`` (``standing_shortfall``), each None when not decided."""
+    """One frame pair's evidence per track; the depth tests' fields only given a camera matrix and a
+    non-degenerate F, each None when not decided.
+
+    Attributes:
+        distance: (N,) epipolar distances, as ``pair_residual``.
+        signed: (N,) signed parallax (``signed_parallax``), or None.
+        ground: (N,) ground ratios (``decided_ratios``), or None.
+        footing: (N,) footing excesses (``footing_excess``), or None.
+        shortfall: (N,) shortfall margins (``standing_shortfall``), or None.
+    """
 
     distance: np.ndarray
     signed: np.ndarray | None = None
@@ -38,15 +45,23 @@ class PairEvidence(NamedTuple):
 def pair_evidence(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
                   K: np.ndarray | None = None, guarded: bool = False,
                   planar_check: bool = True) -> PairEvidence | None:
-    """The evidence of one frame pair's tracks (``PairEvidence``); None when there is no model at all.
+    """The evidence of one frame pair's tracks.
 
     The distances are ``epipolar_fit``'s; the depth tests run only under a non-degenerate F and with ``K``.
 
-    ``guarded``: the rotation may be misjudged (the module's docstring): a track is behind infinity only by at
-    least ``behind_share`` of the rotation's image motion at it, and pairs turning more than
-    ``max_rotation_deg`` sign nothing else (``signed_parallax``).
-    ``planar_check``: False skips the homography's test of F's degeneracy (a caller that knows the camera
-    translates, from a pair of the same window; the homography fit is the costlier half)."""
+    Args:
+        x1, x2: (N, 2) track positions in the pair's first and second frame (pixels).
+        config: settings.
+        K: optional (3, 3) camera matrix; None = no depth tests.
+        guarded: the rotation may be misjudged: a track is behind infinity only by at least ``behind_share``
+            of the rotation's image motion at it, and pairs turning more than ``max_rotation_deg`` sign
+            nothing else (``signed_parallax``).
+        planar_check: False skips the homography's test of F's degeneracy (a caller that knows the camera
+            translates, from a pair of the same window; the homography fit is the costlier half).
+
+    Returns:
+        PairEvidence with (N,) fields; None when there is no model at all.
+    """
     fit = epipolar_fit(x1, x2, config, planar_check)
     if fit is None or fit.fundamental is None or K is None:
         return None if fit is None else PairEvidence(fit.distance)
@@ -72,11 +87,16 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
                   footing: np.ndarray | None = None, shortfall: np.ndarray | None = None,
                   dense: np.ndarray | None = None, measurable: np.ndarray | None = None,
                   depth: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: tracks whose median distance over their pairs exceeds max(factor x median, floor) (where the
-    ``dense`` residual, when given, reaches ``corroboration`` times that distance, or the distance exceeds
-    ``evident_factor`` times the threshold), whose median signed parallax is below -cheir_px, whose median
-    ground ratio is below ground_ratio, whose median footing excess is above footing_px, or that fall short of
-    the ground where they stand in most pairs (``short_of_ground``, where ``measurable``).
+    """Which tracks move over a window: the epipolar distance test or any depth test (``depth_moving``).
+
+    A track n moves when its median distance d_n over its pairs exceeds
+
+        τ = max(factor · median_n d_n, floor_px)
+
+    (and, when ``dense`` is given, dense_n >= corroboration · d_n or d_n > evident_factor · τ), or when its
+    median signed parallax is below -cheir_px, its median ground ratio below ground_ratio, its median footing
+    excess above footing_px, or it falls short of the ground where it stands in most pairs
+    (``short_of_ground``, where ``measurable``).
 
     Args:
         residuals: (N, P) distances from ``pair_residuals`` (NaN = not measured).
@@ -91,6 +111,9 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
             the shortfall test takes only those (default: every track).
         depth: optional (N,) bool, the depth tests' part (``depth_moving`` of the same arguments) when the caller
             has it already; then ``signed`` to ``measurable`` are not read.
+
+    Returns:
+        (N,) bool, True for moving tracks.
     """
     per_track = row_medians(residuals)
     measured = ~np.isnan(per_track)
@@ -110,10 +133,20 @@ def moving_tracks(residuals: np.ndarray, config: TrackMotionConfig = TrackMotion
 def depth_moving(n: int, config: TrackMotionConfig = TrackMotionConfig(), signed: np.ndarray | None = None,
                  ground: np.ndarray | None = None, footing: np.ndarray | None = None,
                  shortfall: np.ndarray | None = None, measurable: np.ndarray | None = None) -> np.ndarray:
-    """(N,) bool: the part of ``moving_tracks`` that the depth tests flag (cheirality, the ground's ratio and
-    shortfall, the footing): tracks whose motion lies along their epipolar lines, which no epipolar distance
-    and no model of an object's own motion shows (a car driving along the camera's axis images as a static copy
-    of it: docs/experiments.md). The arguments are ``moving_tracks``' (N: the number of tracks)."""
+    """The part of ``moving_tracks`` that the depth tests flag (cheirality, the ground's ratio and shortfall,
+    the footing).
+
+    These catch tracks whose motion lies along their epipolar lines, which no epipolar distance and no model of
+    an object's own motion shows (a car driving along the camera's axis images as a static copy of it:
+    docs/experiments.md).
+
+    Args:
+        n: the number of tracks N.
+        config, signed, ground, footing, shortfall, measurable: as ``moving_tracks``.
+
+    Returns:
+        (N,) bool.
+    """
     moving = np.zeros(n, dtype=bool)
     if signed is not None:
         moving |= _median_below(signed, -config.cheir_px)

@@ -53,10 +53,21 @@ class TrajectoryConfig:
 def trajectory_kernels(tracks_xy: np.ndarray, visible: np.ndarray, views: tuple[str, ...],
                        config: TrajectoryConfig, rng: np.random.Generator, *,
                        groups: np.ndarray | None = None) -> list[np.ndarray]:
-    """One dense (N, N) ORK kernel per view (model type) over the trajectories, before sparsification.
+    """One dense ORK kernel per view (model type) over the trajectories, before sparsification.
 
-    Without ``groups``: ``n_hypotheses`` random minimal samples per pair. With (N,) ``groups`` (a first
+    Without ``groups``: ``n_hypotheses`` random minimal samples per pair. With ``groups`` (a first
     clustering): ``refine_hypotheses`` samples per pair, ``guided_fraction`` of them drawn inside the groups.
+
+    Args:
+        tracks_xy: (N, F, 2) positions (pixels).
+        visible: (N, F) bool.
+        views: model types, a non-empty subset of ("fundamental", "homography", "affine").
+        config: settings.
+        rng: random generator for the samples.
+        groups: optional (N,) int group of each trajectory.
+
+    Returns:
+        One (N, N) kernel per view, in the order of ``views``.
     """
     unknown = set(views) - set(TRAJECTORY_VIEWS)
     if unknown or not views:

@@ -41,9 +41,16 @@ class DenseEvidence:
 
     def fit(self, observation: Observation,
             stages: Stages) -> tuple[EpipolarResidual | None, np.ndarray | None, np.ndarray | None]:
-        """The residual of ``observation``'s frame pair (None without its flow), its (h, w) bool dense mask and the
-        mask's part the depth tests flagged (both None without a residual); timed in ``stages`` (dense_flow,
-        dense_fit)."""
+        """The dense residual of the observation's frame pair, its dense mask and the part the depth tests flagged.
+
+        Args:
+            observation: the frame's observation (its flows and grey frames).
+            stages: timer the work is recorded in (dense_flow, dense_fit).
+
+        Returns:
+            The EpipolarResidual (None without the pair's flow), the (h, w) bool dense mask (with hysteresis) and
+            its (h, w) bool part the depth tests flagged (both None without a residual).
+        """
         evidence = None
         if observation.flows is not None:
             backward, forward = observation.flows

@@ -25,8 +25,15 @@ DEPTH_LABEL = 2
 
 
 def dense_labels(refit: Refit) -> np.ndarray:
-    """(h, w) uint8 ``refit``'s dense mask as labels, carried along the flow as one: DEPTH_LABEL where the depth tests
-    flagged a pixel (``Refit.dense_depth``, a part of the mask), 1 elsewhere in it, 0 outside."""
+    """A refit's dense mask as labels, to be carried along the flow as one.
+
+    Args:
+        refit: a Refit with a dense mask.
+
+    Returns:
+        (h, w) uint8: DEPTH_LABEL where the depth tests flagged a pixel (``Refit.dense_depth``, a part of the
+        mask), 1 elsewhere in the mask, 0 outside.
+    """
     labels = refit.dense.astype(np.uint8)
     if refit.dense_depth is not None:
         labels[refit.dense_depth] = DEPTH_LABEL
@@ -35,12 +42,20 @@ def dense_labels(refit: Refit) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Refit:
-    """The motion evidence fitted on one observation: which tracks move (the track test of frame ``index``), and
-    the dense residual mask of frame ``dense_index`` (``index`` when both were fitted on it; an earlier frame's
-    when the track test comes first, see ``MotionFrontEnd.refit_tracks``; -1 with no dense mask yet) and the part of
-    it the depth tests flagged (``dense_depth``), and whether its residual was against a homography
-    (``dense_planar``); ``stages`` times the work done for frame ``index``. ``depth_flagged``: the flagged tracks
-    that the depth tests flagged (``depth_moving``), now or while they have stayed flagged since."""
+    """The motion evidence fitted on one observation: which tracks move, and the dense residual mask.
+
+    Attributes:
+        index: the frame of the track test.
+        flagged: (n,) ids of the tracks that move.
+        dense: (h, w) bool dense residual mask of frame ``dense_index``, or None.
+        stages: seconds of the work done for frame ``index``, by stage.
+        dense_index: the dense mask's frame: ``index`` when both were fitted on it; an earlier frame's when the
+            track test comes first (see ``MotionFrontEnd.refit_tracks``); -1 with no dense mask yet.
+        dense_depth: (h, w) bool part of ``dense`` the depth tests flagged, or None.
+        dense_planar: whether the dense residual was against a homography.
+        depth_flagged: (d,) ids of the flagged tracks that the depth tests flagged (``depth_moving``), now or
+            while they have stayed flagged since.
+    """
 
     index: int
     flagged: np.ndarray

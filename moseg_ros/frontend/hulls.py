@@ -17,8 +17,16 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 
 
 def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndarray:
-    """(N,) group of each of the (N, 2) ``points`` when points closer than ``link_px`` are linked; -1 for the
-    points of groups smaller than ``min_group``."""
+    """Groups of points linked when closer than ``link_px`` (the connected components of that graph).
+
+    Args:
+        points: (N, 2) positions (x, y).
+        link_px: largest distance between two linked points.
+        min_group: smallest group kept.
+
+    Returns:
+        (N,) int64 group of each point; -1 for the points of groups smaller than ``min_group``.
+    """
     if len(points) < min_group:
         return np.full(len(points), -1, dtype=np.int64)
     pairs = cKDTree(points).query_pairs(link_px, output_type="ndarray")
@@ -30,8 +38,10 @@ def linked_groups(points: np.ndarray, link_px: float, min_group: int) -> np.ndar
 def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_group: int,
               static: np.ndarray | None = None, purity: float = 0.0, group: np.ndarray | None = None,
               reach_px: float = 0.0) -> np.ndarray:
-    """Link points closer than ``link_px``; fill the hull of every group of ``min_group`` or more whose points
-    are at least ``purity`` of its points plus the ``static`` points inside its convex hull.
+    """Mask of the hulls of the groups of linked points that are pure enough.
+
+    Points closer than ``link_px`` are linked; the hull of every group of ``min_group`` or more is filled when
+    n_group >= purity · (n_group + static points inside its convex hull).
 
     Args:
         points: (N, 2) positions (x, y).
@@ -73,9 +83,19 @@ def hull_mask(points: np.ndarray, shape: tuple[int, int], link_px: float, min_gr
 
 
 def reach_triangles(points: np.ndarray, reach_px: float) -> np.ndarray | None:
-    """(T, 3, 2) the triangles of the (N, 2) ``points``' Delaunay triangulation (scipy.spatial.Delaunay) whose
-    sides are all at most ``reach_px`` long: the alpha shape's region, which follows an outline's bays where the
-    convex hull bridges them. None when the points span no triangle (collinear, or fewer than three distinct)."""
+    """The triangles of the points' Delaunay triangulation (scipy.spatial.Delaunay) whose sides are all at most
+    ``reach_px`` long.
+
+    Their union is the alpha shape's region, which follows an outline's bays where the convex hull bridges them.
+
+    Args:
+        points: (N, 2) positions (x, y).
+        reach_px: longest side kept.
+
+    Returns:
+        (T, 3, 2) corners of the triangles; None when the points span no triangle (collinear, or fewer than
+        three distinct).
+    """
     try:
         corners = points[Delaunay(points).simplices]
     except QhullError:
@@ -85,8 +105,15 @@ def reach_triangles(points: np.ndarray, reach_px: float) -> np.ndarray | None:
 
 
 def touching(candidates: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """(h, w) bool: the 8-connected regions of ``candidates`` that share a pixel with ``seeds`` (both (h, w)
-    bool)."""
+    """The 8-connected regions of ``candidates`` that share a pixel with ``seeds`` (hysteresis).
+
+    Args:
+        candidates: (h, w) bool.
+        seeds: (h, w) bool.
+
+    Returns:
+        (h, w) bool.
+    """
     count, labels = cv2.connectedComponents(candidates.astype(np.uint8), connectivity=8)
     keep = np.zeros(count, dtype=bool)
     keep[labels[candidates & seeds]] = True

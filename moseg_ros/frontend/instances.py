@@ -40,8 +40,15 @@ def propose_regions(evidence: np.ndarray, min_area: int, close_px: int = 5) -> n
 
 
 def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """An id map ((H, W) ints, 0 or below = none) renumbered 0..R: returns the (R + 1,) ids in order, the first
-    0 (none), and the (H, W) int32 map of each pixel's number (the InstanceTracker's input form)."""
+    """An id map renumbered 0..R (the InstanceTracker's input form).
+
+    Args:
+        ids: (H, W) int ids, 0 or below = none.
+
+    Returns:
+        values (R + 1,) the ids in order, the first 0 (none); compact (H, W) int32 each pixel's number,
+        values[compact] = max(ids, 0).
+    """
     ids = np.maximum(ids, 0)
     if ids.max(initial=0) <= DENSE_IDS:  # a table of the ids present: NumPy's unique sorts every pixel, much slower
         present = np.flatnonzero(np.bincount(ids.ravel()))
@@ -59,9 +66,12 @@ def compact_ids(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cur: int) -> np.ndarray:
     """IoU between every labelled region of two label maps, from one joint histogram.
 
+    IoU_ij = |P_i ∩ C_j| / |P_i ∪ C_j|
+
     Args:
         previous: (H, W) int labels 0..n_prev.
         current: (H, W) int labels 0..n_cur.
+        n_prev, n_cur: the largest label of each.
 
     Returns:
         (n_prev, n_cur) float IoU of region i+1 of ``previous`` with region j+1 of ``current``.
@@ -78,8 +88,9 @@ def mask_iou_matrix(previous: np.ndarray, current: np.ndarray, n_prev: int, n_cu
 
 def kept_apart(regions: np.ndarray, previous: np.ndarray, eligible: np.ndarray, share: float,
                flow: np.ndarray | None = None, motion_ratio: float = 0.0) -> np.ndarray:
-    """``regions`` with every region that took in two or more eligible regions of the frame before that move apart
-    split between them: each of its pixels goes to the nearest pixel of those regions inside it
+    """Regions that took in two or more eligible regions of the frame before that move apart, split between them.
+
+    Each pixel of such a region goes to the nearest pixel of those regions inside it
     (cv2.distanceTransformWithLabels).
 
     Two movers whose regions touch come out of the evidence as one connected region; the frame before still had
@@ -137,10 +148,19 @@ SAME_MOTION_FLOOR_PX = 1.0
 
 
 def same_motion(flows: np.ndarray, ratio: float) -> np.ndarray:
-    """(K,) int: for each of the (K, 2) median ``flows`` of K regions, the first of the group it moves with: two
-    regions move alike when their flows differ by at most ``ratio`` of the faster one's or ``SAME_MOTION_FLOOR_PX``
-    (a rigid body's parts differ by its rotation and looming; two movers by their own motions); groups are the
-    connected components of that relation (scipy.sparse.csgraph)."""
+    """Groups of regions that move alike, from their median flows.
+
+    Regions i and j move alike when |f_i − f_j| <= max(SAME_MOTION_FLOOR_PX, ratio · max(|f_i|, |f_j|)) (a rigid
+    body's parts differ by its rotation and looming; two movers by their own motions); groups are the connected
+    components of that relation (scipy.sparse.csgraph).
+
+    Args:
+        flows: (K, 2) median flow of each region (pixels a frame).
+        ratio: share of the faster flow two alike regions may differ by.
+
+    Returns:
+        (K,) int index of the first region of the group each one moves with.
+    """
     speed = np.linalg.norm(flows, axis=1)
     apart = np.linalg.norm(flows[:, None] - flows[None], axis=2)
     alike = apart <= np.maximum(SAME_MOTION_FLOOR_PX, ratio * np.maximum(speed[:, None], speed[None]))
@@ -151,8 +171,14 @@ def same_motion(flows: np.ndarray, ratio: float) -> np.ndarray:
 
 
 def nearest_seed(seeds: np.ndarray) -> np.ndarray:
-    """(h, w) int: each pixel's nearest non-zero value of the (h, w) int ``seeds`` (at least one), by Euclidean
-    distance (cv2.distanceTransformWithLabels, its labels one per seed pixel)."""
+    """Each pixel's nearest non-zero seed value, by Euclidean distance (cv2.distanceTransformWithLabels).
+
+    Args:
+        seeds: (h, w) int, at least one non-zero.
+
+    Returns:
+        (h, w) values of ``seeds``' dtype.
+    """
     _, pixel = cv2.distanceTransformWithLabels((seeds == 0).astype(np.uint8), cv2.DIST_L2, 5,
                                                labelType=cv2.DIST_LABEL_PIXEL)
     value = np.zeros(int(pixel.max()) + 1, dtype=seeds.dtype)
@@ -188,9 +214,18 @@ class InstanceTracker:
         self.ages = {}
 
     def update(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
-        """Relabel ``regions`` ((H, W) int32, 0 = none and 1..R each present) with persistent ids; returns
-        (H, W) int32. ``flow``: see ``assign``. With ``keep_apart_after``, a region that took in two or more of the
-        frame before's regions, each seen that many frames, is split between them first."""
+        """Relabel regions with persistent ids.
+
+        With ``keep_apart_after``, a region that took in two or more of the frame before's regions, each seen
+        that many frames, is split between them first.
+
+        Args:
+            regions: (H, W) int32, 0 = none and 1..R each present.
+            flow: optional (H, W, 2) dense flow back to the frame before (see ``assign``).
+
+        Returns:
+            (H, W) int32 persistent ids (0 = none).
+        """
         previous = self._moved_previous(regions.shape, flow)
         if self.keep_apart_after > 0 and previous is not None:
             old_ids = np.concatenate([[0], self._previous[1]])
@@ -200,11 +235,17 @@ class InstanceTracker:
         return np.take(self._matched(regions, previous), regions)
 
     def assign(self, regions: np.ndarray, flow: np.ndarray | None = None) -> np.ndarray:
-        """The persistent id of each region of ``regions`` (``update``'s input) as a (R + 1,) int32 table, 0 for
-        none; the tracker moves on to this frame as ``update`` does. ``flow``: the (H, W, 2) dense flow from this
-        frame back to the one before, which moves the previous regions to this frame before they are matched (a
-        looming or fast object overlaps too little of where it was to keep its id otherwise); None: matched
-        where they were."""
+        """The persistent id of each region; the tracker moves on to this frame as ``update`` does.
+
+        Args:
+            regions: (H, W) int32, 0 = none and 1..R each present.
+            flow: optional (H, W, 2) dense flow from this frame back to the one before, which moves the previous
+                regions to this frame before they are matched (a looming or fast object overlaps too little of
+                where it was to keep its id otherwise); None: matched where they were.
+
+        Returns:
+            (R + 1,) int32 table of ids, 0 for none.
+        """
         return self._matched(regions, self._moved_previous(regions.shape, flow))
 
     def _moved_previous(self, shape: tuple[int, int], flow: np.ndarray | None) -> np.ndarray | None:

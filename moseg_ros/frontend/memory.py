@@ -17,9 +17,18 @@ from moseg_ros.core.flow_field import pulled_forward
 
 
 def carried(mask: np.ndarray, index: int, backward: tuple[tuple[int, np.ndarray], ...]) -> np.ndarray:
-    """``mask`` (h, w) bool, or uint8 labels, of frame ``index`` warped along the (frame, backward flow to the frame
-    before) pairs of ``backward`` whose frame is later, oldest first: where it lies in the last of them (of the
-    same dtype)."""
+    """A mask of frame ``index`` carried along the backward flows to the last frame of ``backward``.
+
+    Each flow of a later frame pulls the mask forward one frame (nearest-neighbour, 0 where it lands outside).
+
+    Args:
+        mask: (h, w) bool mask, or uint8 labels.
+        index: the mask's frame.
+        backward: (frame, (h, w, 2) backward flow to the frame before) pairs, oldest first.
+
+    Returns:
+        (h, w) mask where it lies in the last frame of ``backward``, of the same dtype.
+    """
     labels = mask.astype(np.uint8, copy=False)
     for frame, flow in backward:
         if frame <= index:
@@ -34,11 +43,22 @@ NO_EVIDENCE = np.uint8(255)
 
 def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | None, settled: np.ndarray,
                frames: int, veto: int) -> np.ndarray:
-    """(h, w) uint8 age of each pixel's moving evidence, in frames: 0 where ``fresh`` ((h, w) bool) holds it;
-    k <= ``frames`` where the frame before's ages ``before`` ((h, w) uint8, None: no such frame) held k - 1,
-    carried along ``flow`` ((h, w, 2), this frame -> the one before); NO_EVIDENCE elsewhere, and over each
-    carried region that is not fresh now and holds ``veto`` or more of the (S, 2) ``settled`` points (x, y:
-    static evidence; 0: no veto)."""
+    """Age of each pixel's moving evidence, in frames, carried along the flow.
+
+    age = 0 where fresh; k <= frames where the carried age of the frame before is k − 1; NO_EVIDENCE elsewhere,
+    and over each carried region that is not fresh now and holds ``veto`` or more ``settled`` points.
+
+    Args:
+        fresh: (h, w) bool evidence of this frame.
+        before: (h, w) uint8 ages of the frame before, or None (no such frame).
+        flow: (h, w, 2) flow, this frame -> the one before, or None.
+        settled: (S, 2) points (x, y) of static evidence.
+        frames: most frames a pixel's evidence is remembered.
+        veto: settled points that veto a carried region (0: no veto).
+
+    Returns:
+        (h, w) uint8 ages.
+    """
     age = np.where(fresh, 0, NO_EVIDENCE).astype(np.uint8)
     if frames <= 0 or before is None or flow is None or before.shape != fresh.shape:
         return age
@@ -56,9 +76,13 @@ def remembered(fresh: np.ndarray, before: np.ndarray | None, flow: np.ndarray | 
 
 @dataclass(frozen=True)
 class Coast:
-    """A lasting region's coasting: the frames in a row it was drawn without its evidence, the (2, 3) similarity it
-    last moved by (its tracks' from the frame before; None before one was fitted) and, while it coasts, its
-    (h, w) bool evidence of its last frame with evidence, moved to the frame before."""
+    """A lasting region's coasting.
+
+    Attributes:
+        frames: the frames in a row it was drawn without its evidence.
+        motion: (2, 3) similarity it last moved by (its tracks' from the frame before); None before one was fitted.
+        shape: while it coasts, (h, w) bool evidence of its last frame with evidence, moved to the frame before.
+    """
 
     frames: int = 0
     motion: np.ndarray | None = None
@@ -69,6 +93,8 @@ def coasted(moving: np.ndarray, labels: np.ndarray, evidence: np.ndarray, lastin
             before: np.ndarray, now: np.ndarray, settled: np.ndarray, frames: int, min_tracks: int, cover: float,
             veto: int, flow: np.ndarray | None = None) -> tuple[np.ndarray, dict[int, Coast]]:
     """Lasting regions of the frame before carried where this frame's evidence lost them.
+
+    x_now = motion · (x, y, 1)ᵀ, motion the (2, 3) similarity of the region's tracks (or the last one).
 
     A looming car's tracks die of its growth and its dense flow fails its check as it passes the camera, a small
     fast car's flow is smoothed into the background's: the evidence drops out for a frame or three while the

@@ -23,8 +23,16 @@ from moseg_ros.frontend.observe import Observation
 
 
 def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarray:
-    """(N,) the largest of the (h, w) ``residual`` within ``reach`` pixels (a square) of each of the (N, 2)
-    ``points`` (x, y at the residual's size; points outside take the nearest border pixel)."""
+    """The largest residual within ``reach`` pixels (a square) of each point.
+
+    Args:
+        points: (N, 2) positions (x, y) at the residual's size; points outside take the nearest border pixel.
+        residual: (h, w) residual map.
+        reach: half the side of the square, pixels.
+
+    Returns:
+        (N,) values of ``residual``'s dtype.
+    """
     if reach > 0:
         residual = cv2.dilate(residual, np.ones((2 * reach + 1, 2 * reach + 1), dtype=np.uint8))
     h, w = residual.shape
@@ -33,8 +41,11 @@ def dense_near(points: np.ndarray, residual: np.ndarray, reach: int) -> np.ndarr
 
 
 def rotation_limit(config: TrackMotionConfig, frames: int) -> float:
-    """Degrees a pair ``frames`` apart may turn before it is ``turned``: ``max_rotation_deg`` holds for the track
-    pairs (``gap`` frames), so the limit per frame is the same for every pair."""
+    """Degrees a pair ``frames`` apart may turn before it is ``turned``: max_rotation_deg / gap · frames.
+
+    ``max_rotation_deg`` holds for the track pairs (``gap`` frames), so the limit per frame is the same for
+    every pair.
+    """
     return config.max_rotation_deg / config.gap * frames
 
 
@@ -61,11 +72,20 @@ class TrackEvidence:
 
     def flagged(self, observation: Observation,
                 last_residual: tuple[int, EpipolarResidual] | None) -> tuple[np.ndarray, np.ndarray]:
-        """Ids of the observed frame's tracks that move (this window, or sticky from earlier windows), and of
-        those among them the depth tests flagged (this window, or in an earlier one while they stayed flagged:
-        ``Refit.depth_flagged``); a track's epipolar distance counts only where the last dense residual near it
-        corroborates it (``TrackMotionConfig.corroboration``, ``_dense_near``; ``last_residual``: that residual
-        and its frame, None without one)."""
+        """Ids of the observed frame's tracks that move, and of those among them the depth tests flagged.
+
+        A track moves in this window, or is sticky from earlier windows; the depth tests' ids are those flagged
+        by them in this window, or in an earlier one while they stayed flagged (``Refit.depth_flagged``). A
+        track's epipolar distance counts only where the last dense residual near it corroborates it
+        (``TrackMotionConfig.corroboration``, ``_dense_near``).
+
+        Args:
+            observation: the frame's observation (its window, pairs and tracks).
+            last_residual: the last dense residual and its frame, None without one.
+
+        Returns:
+            (n,) sorted flagged track ids and (d,) sorted ids among them the depth tests flagged.
+        """
         self._catch_up(observation)
         newest = None
         if observation.pair is not None:

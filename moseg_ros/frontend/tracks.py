@@ -75,14 +75,17 @@ class PointTracker:
 
     def update(self, gray: np.ndarray, backward_flow: np.ndarray | None = None,
                shrunk: np.ndarray | None = None) -> None:
-        """Track the living points into ``gray`` ((H, W) uint8), then seed new ones.
+        """Track the living points into ``gray``, then seed new ones.
 
-        ``backward_flow``: optional (h, w, 2) flow from ``gray`` to the previous frame, at any size of the same
-        aspect (its vectors in its own pixels): inverted, KLT's starting guess (``landing``); the points it
-        brings back near their start skip KLT's backward pass.
-        ``shrunk``: optional ``gray`` already shrunk (INTER_AREA) by the caller; corners are found on it when it
-        has the size ``seed_width`` and ``seed_pixels`` give, instead of shrinking ``gray`` again (the motion
-        front-end's dense frame)."""
+        Args:
+            gray: (H, W) uint8 frame.
+            backward_flow: optional (h, w, 2) flow from ``gray`` to the previous frame, at any size of the same
+                aspect (its vectors in its own pixels): inverted, KLT's starting guess (``landing``); the points it
+                brings back near their start skip KLT's backward pass.
+            shrunk: optional ``gray`` already shrunk (INTER_AREA) by the caller; corners are found on it when it
+                has the size ``seed_width`` and ``seed_pixels`` give, instead of shrinking ``gray`` again (the
+                motion front-end's dense frame).
+        """
         self.flow_checked = 0.0
         if self._previous is not None and len(self.points):
             self._track(self._previous, gray, backward_flow)
@@ -159,13 +162,21 @@ def _klt(source: np.ndarray, target: np.ndarray, points: np.ndarray, guess: np.n
 
 
 def landing(backward_flow: np.ndarray, points: np.ndarray, shape: tuple[int, int], rounds: int = 2) -> np.ndarray:
-    """(N, 2) where the (N, 2) ``points`` of the previous frame land in the current one, from the (h, w, 2)
-    ``backward_flow`` (current -> previous, at any size of the same aspect, in its own pixels) of a current
-    frame of ``shape`` (H, W): the q with q + b(q) = p, by fixed-point rounds q <- p - b(q) from q = p.
+    """Where points of the previous frame land in the current one, by inverting the backward flow.
 
-    Each round's error is the flow's change over the last one's error, so two rounds land within a fraction of
-    a pixel wherever the flow is smooth, close to what sampling a forward flow at p gives, which would cost a
-    second dense flow."""
+    The q with q + b(q) = p, by fixed-point rounds q <- p − b(q) from q = p. Each round's error is the flow's
+    change over the last one's error, so two rounds land within a fraction of a pixel wherever the flow is
+    smooth, close to what sampling a forward flow at p gives, which would cost a second dense flow.
+
+    Args:
+        backward_flow: (h, w, 2) flow b, current -> previous, at any size of the same aspect, in its own pixels.
+        points: (N, 2) points p (x, y) of the previous frame.
+        shape: (H, W) of the current frame.
+        rounds: fixed-point rounds.
+
+    Returns:
+        (N, 2) positions q in the current frame.
+    """
     guess = points
     for _ in range(rounds):
         guess = points - _sampled(backward_flow, guess, shape)

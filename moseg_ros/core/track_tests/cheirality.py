@@ -21,14 +21,24 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 
 
 def guessed_camera_matrix(image_size: tuple[int, int], focal_fraction: float = 0.9) -> np.ndarray:
-    """(3, 3) K of an uncalibrated camera: focal ``focal_fraction`` x width, principal point at the centre."""
+    """Camera matrix of an uncalibrated camera: focal ``focal_fraction`` x width, principal point at the centre.
+
+    K = [[f, 0, w/2], [0, f, h/2], [0, 0, 1]],  f = focal_fraction · w
+
+    Args:
+        image_size: (h, w) in pixels (height first).
+        focal_fraction: focal length over the width.
+
+    Returns:
+        (3, 3) float64 K.
+    """
     h, w = image_size
     f = focal_fraction * w
     return np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
 
 
 def rotation_degrees(R: np.ndarray) -> float:
-    """The angle of a (3, 3) rotation matrix, in degrees."""
+    """The angle of a (3, 3) rotation matrix in degrees: θ = arccos((tr R − 1) / 2)."""
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
@@ -104,9 +114,9 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
             rotation: see ``guarded_signs``), and gives None when ``config.behind_share`` is infinite.
 
     Returns:
-        None when the pair does not decide the sign (too few votes, no consensus, or too much rotation with
-        an infinite ``behind_share``). The translation's sign is the one the votes choose, for ``signed``
-        and ``epipole_row`` alike.
+        Parallax of the N tracks; None when the pair does not decide the sign (too few votes, no consensus, or
+        too much rotation with an infinite ``behind_share``). The translation's sign is the one the votes
+        choose, for ``signed`` and ``epipole_row`` alike.
     """
     R1, R2, t = cv2.decomposeEssentialMat(K.T @ fundamental @ K)
     # Of the two rotations the true one is the small one (the other is turned 180 degrees about the baseline).
@@ -132,8 +142,8 @@ def signed_parallax(x1: np.ndarray, x2: np.ndarray, fundamental: np.ndarray, inl
 
 
 def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: float) -> np.ndarray:
-    """(N,) bool: points whose parallax lies behind infinity by at least ``share`` of the image motion the
-    rotation alone gives them, |K R K^-1 x1 - x1|.
+    """Points whose parallax lies behind infinity by at least ``share`` of the image motion the rotation alone
+    gives them: −signed >= share · |K R K⁻¹ x1 − x1|.
 
     The rotation recovered from F is off by a share of its own image motion (most with a guessed K, and in a
     turn with any), and static points come out behind infinity by about that much; an object the panning camera
@@ -144,6 +154,9 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
         signed: (N,) their signed parallax (``oriented_parallax``, oriented by the vote).
         rotation: (3, 3) the infinite homography K R K^-1.
         share: the least share of the rotation's motion.
+
+    Returns:
+        (N,) bool.
     """
     rotated = x1 @ rotation[:, :2].T + rotation[:, 2]
     motion = np.hypot(rotated[:, 0] / rotated[:, 2] - x1[:, 0], rotated[:, 1] / rotated[:, 2] - x1[:, 1])
@@ -151,10 +164,20 @@ def far_behind(x1: np.ndarray, signed: np.ndarray, rotation: np.ndarray, share: 
 
 
 def guarded_signs(x1: np.ndarray, parallax: Parallax, share: float) -> np.ndarray:
-    """(N,) the signed parallax the cheirality test takes from a guarded pair (``pair_evidence``): a point
-    ``far_behind`` infinity (by ``share`` of the rotation's image motion) keeps its value; one less far behind
-    counts as at infinity (0), and in a ``turned`` pair every other point is undecided (NaN). The ground and
-    footing tests keep ``parallax.signed``: a followed car's small negative parallax is theirs."""
+    """The signed parallax the cheirality test takes from a guarded pair (``pair_evidence``).
+
+    A point ``far_behind`` infinity (by ``share`` of the rotation's image motion) keeps its value; one less far
+    behind counts as at infinity (0), and in a ``turned`` pair every other point is undecided (NaN). The ground
+    and footing tests keep ``parallax.signed``: a followed car's small negative parallax is theirs.
+
+    Args:
+        x1: (N, 2) points in the earlier image.
+        parallax: the pair's ``signed_parallax``.
+        share: the least share of the rotation's motion.
+
+    Returns:
+        (N,) signed parallax in pixels, 0 or NaN as above.
+    """
     far = far_behind(x1, parallax.signed, parallax.rotation, share)
     if parallax.turned:
         return np.where(far, parallax.signed, np.nan)
@@ -182,9 +205,11 @@ class DenseParallax(NamedTuple):
 def dense_parallax(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.ndarray, K: np.ndarray,
                    config: TrackMotionConfig = TrackMotionConfig(), *, step: int = 10, inlier_px: float = 0.5,
                    max_rotation_deg: float = np.inf) -> DenseParallax | None:
-    """The cheirality of ``signed_parallax`` for every pixel of a dense flow: the translation's sign voted by every
-    ``step``-th reliable pixel within ``inlier_px`` of its epipolar line, then each pixel's parallax against the
-    plane at infinity. ``behind_infinity`` and ``nearer_than_road`` read it.
+    """The cheirality of ``signed_parallax`` for every pixel of a dense flow.
+
+    The translation's sign is voted by every ``step``-th reliable pixel within ``inlier_px`` of its epipolar
+    line, then each pixel's parallax against the plane at infinity is taken (``oriented_parallax``).
+    ``behind_infinity`` and ``nearer_than_road`` read it.
 
     Args:
         to_previous: (H, W, 2) flow from the current frame to the previous one.
@@ -196,7 +221,7 @@ def dense_parallax(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.n
         max_rotation_deg: as in ``signed_parallax``.
 
     Returns:
-        None when the vote does not decide the translation's sign.
+        DenseParallax with (H, W) fields; None when the vote does not decide the translation's sign.
     """
     h, w = valid.shape
     grid = pixel_grid(h, w)
@@ -220,9 +245,9 @@ def dense_parallax(to_previous: np.ndarray, valid: np.ndarray, fundamental: np.n
 
 def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
                     threshold_px: float = 1.0, guarded: bool = False) -> np.ndarray:
-    """(H, W) bool: reliable pixels whose signed parallax is below -``threshold_px`` (the cheirality test of
-    ``signed_parallax`` for every pixel: the body of an object the camera follows, or of a car pulling away,
-    where tracks are few).
+    """Reliable pixels whose signed parallax is below −``threshold_px``: the cheirality test for every pixel.
+
+    It finds the body of an object the camera follows, or of a car pulling away, where tracks are few.
 
     Args:
         parallax: the flow's ``dense_parallax``.
@@ -231,6 +256,9 @@ def behind_infinity(parallax: DenseParallax, valid: np.ndarray, config: TrackMot
         threshold_px: parallax below minus this moves.
         guarded: the rotation may be misjudged (a guessed K, a turn): a pixel is behind infinity only by at
             least ``config.behind_share`` of the rotation's image motion there (``far_behind``).
+
+    Returns:
+        (H, W) bool.
     """
     h, w = valid.shape
     behind = (parallax.signed < -threshold_px).ravel()

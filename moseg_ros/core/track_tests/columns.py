@@ -14,10 +14,14 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 
 
 class FootingColumns(NamedTuple):
-    """What lies under each track of a pair (``footing_columns``): the tracks below the epipole (``tested``, (T,)
-    indices), the tracks under each in its column band (``index`` (T, run) and ``under`` (T, run) bool, as
-    ``_band_below``; T = 0 when no band holds one) and every track's inverse depth (``depth`` (N,), signed /
-    gain)."""
+    """What lies under each track of a pair (``footing_columns``).
+
+    Attributes:
+        tested: (T,) int indices of the tracks below the epipole (T = 0 when no band holds a candidate).
+        index: (T, run) int indices of the tracks in each one's column band (as ``_band_below``).
+        under: (T, run) bool, True where that track is a candidate under the tested one.
+        depth: (N,) every track's inverse depth, signed / gain.
+    """
 
     tested: np.ndarray
     index: np.ndarray
@@ -27,9 +31,21 @@ class FootingColumns(NamedTuple):
 
 def footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
                     config: TrackMotionConfig = TrackMotionConfig()) -> FootingColumns:
-    """The column under each track below the epipole (``footing_band`` of the tracks' horizontal extent) and the
-    tracks in it that may be a footing: in front of infinity and, with ``ground``, not below ``ground_ratio`` (a
-    followed car looks farther than anything behind it). The footing and standing tests share them."""
+    """The column under each track below the epipole and the tracks in it that may be a footing.
+
+    The column is ``footing_band`` of the tracks' horizontal extent wide; a footing lies in front of infinity
+    and, with ``ground``, not below ``ground_ratio`` (a followed car looks farther than anything behind it).
+    The footing and standing tests share them.
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax`` (with an epipole row).
+        ground: optional (N,) ground ratios (``ground_parallax_ratio``).
+        config: ``footing_band`` and ``ground_ratio``.
+
+    Returns:
+        FootingColumns.
+    """
     depth = parallax.signed / np.maximum(parallax.gain, 1e-12)
     below_horizon = x1[:, 1] > parallax.epipole_row
     footing = below_horizon & (parallax.gain > 0) & (depth > 0)
@@ -44,10 +60,23 @@ def footing_columns(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | Non
 
 def footing_base(row: np.ndarray, rows: np.ndarray, under: np.ndarray, depths: np.ndarray, depth: np.ndarray,
                   same_depth: float) -> np.ndarray:
-    """(T,) the lowest row (largest y) of each tested track's object: its own row or that of the lowest track
-    under it (``rows``, ``under``: (T, run) from ``_band_below``) whose inverse depth ``depths`` is within
-    ``same_depth`` of its own ``depth``. A thin pole hides little of the road beside its trunk; the road seen
-    there lies behind it, not under it."""
+    """The lowest row (largest y) of each tested track's object.
+
+    base = max(row, max{rows_j : under_j, |depths_j / depth − 1| <= same_depth}): its own row or that of the
+    lowest track under it at its own inverse depth. A thin pole hides little of the road beside its trunk; the
+    road seen there lies behind it, not under it.
+
+    Args:
+        row: (T,) the tested tracks' rows.
+        rows: (T, run) rows of the tracks in each one's band (from ``_band_below``).
+        under: (T, run) bool, the tracks under it.
+        depths: (T, run) their inverse depths.
+        depth: (T,) the tested tracks' inverse depths.
+        same_depth: relative tolerance of "the same inverse depth".
+
+    Returns:
+        (T,) float64 rows.
+    """
     same = under & (np.abs(depths / np.maximum(depth, 1e-12)[:, None] - 1.0) <= same_depth)
     return np.maximum(np.where(same, rows, -np.inf).max(axis=1), row)
 

@@ -18,9 +18,17 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 
 
 def beyond_allowance(distance: np.ndarray, displacement: np.ndarray, allowance: float) -> np.ndarray:
-    """(...) float32 epipolar ``distance`` (any shape) of correspondences less ``allowance`` times the length of
-    each one's ``displacement`` (that shape plus a last axis of 2: x2 - x1, or a dense flow), at least 0
-    (``TrackMotionConfig.epipole_allowance``; the front-end's ``dense_allowance`` for a dense flow)."""
+    """Epipolar distance beyond an allowance that grows with the displacement: max(d − allowance · |x2 − x1|, 0).
+
+    Args:
+        distance: (...) epipolar distances of correspondences (any shape).
+        displacement: (..., 2) each one's displacement (x2 − x1, or a dense flow).
+        allowance: ``TrackMotionConfig.epipole_allowance`` (the front-end's ``dense_allowance`` for a dense
+            flow); <= 0 leaves the distances as they are.
+
+    Returns:
+        (...) float32 distances.
+    """
     if allowance <= 0:
         return np.asarray(distance, dtype=np.float32)
     return np.maximum(distance - allowance * np.hypot(displacement[..., 0], displacement[..., 1]),
@@ -29,9 +37,17 @@ def beyond_allowance(distance: np.ndarray, displacement: np.ndarray, allowance: 
 
 def may_be_planar(x1: np.ndarray, x2: np.ndarray, f_inliers: np.ndarray,
                   config: TrackMotionConfig = TrackMotionConfig()) -> bool:
-    """Whether a homography might explain about as many of the (N, 2) correspondences ``x1`` -> ``x2`` as F
-    does (its (N,) bool ``f_inliers``): a quick RANSAC homography on every ``screen_stride``-th one explains at
-    least ``homography_screen`` of F's inliers among them. False tells the caller to skip the full fit."""
+    """Whether a homography might explain about as many of the correspondences as F does.
+
+    True when a quick RANSAC homography on every ``screen_stride``-th correspondence explains at least
+    ``homography_screen`` of F's inliers among them, when it finds no model, or when the screen is off
+    (``homography_screen`` <= 0). False tells the caller to skip the full fit.
+
+    Args:
+        x1, x2: (N, 2) correspondences.
+        f_inliers: (N,) bool F's inliers.
+        config: the screen's settings.
+    """
     if config.homography_screen <= 0:
         return True
     step = max(1, config.screen_stride)
@@ -59,15 +75,20 @@ class EpipolarFit(NamedTuple):
 
 def epipolar_fit(x1: np.ndarray, x2: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(),
                  planar_check: bool = True) -> EpipolarFit | None:
-    """The camera's dominant motion between (N, 2) ``x1`` and ``x2`` and each track's distance from it.
+    """The camera's dominant motion between two frames' tracks and each track's distance from it.
 
     F by RANSAC and polishing; F is degenerate when a homography explains ``homography_preference`` as many
     tracks or Torr's GRIC prefers it (then the homography's transfer error is the distance). Under F,
-    d = sqrt(Sampson(F, x1, x2)) - ``epipole_allowance`` × |x2 - x1|, at least 0 (``beyond_allowance``).
-    ``planar_check``: False skips the homography (a caller that knows the camera translates).
+
+        d = max(sqrt(Sampson(F, x1, x2)) − epipole_allowance · |x2 − x1|, 0)   (``beyond_allowance``).
+
+    Args:
+        x1, x2: (N, 2) track positions in the earlier and the later frame.
+        config: settings.
+        planar_check: False skips the homography (a caller that knows the camera translates).
 
     Returns:
-        The fit, or None with fewer than ``min_tracks`` tracks or no F at all.
+        EpipolarFit with (N,) distances, or None with fewer than ``min_tracks`` tracks or no F at all.
     """
     if len(x1) < config.min_tracks:
         return None

@@ -22,8 +22,10 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMotionConfig = TrackMotionConfig(), *,
                      excess_px: float | None = None, clearance: float = 0.0,
                      sample_step: int = 4) -> np.ndarray | None:
-    """(H, W) bool: reliable pixels below the epipole that look nearer than the road where they stand, the footing
-    test (``footing_excess``) for every pixel of a dense flow.
+    """Reliable pixels below the epipole that look nearer than the road where they stand: the footing test
+    (``footing_excess``) for every pixel of a dense flow.
+
+    A pixel moves when signed > footing_allowance(first road row) · footing parallax + excess_px.
 
     The road's inverse depth is ``ground_slope`` fitted to every ``sample_step``-th reliable pixel. A pixel of the
     road is one within ``footing_road_tol`` of it; a pixel stands no lower than the first road pixel under it in
@@ -45,7 +47,8 @@ def nearer_than_road(parallax: DenseParallax, valid: np.ndarray, config: TrackMo
         sample_step: the stride of the pixels the road's slope is fitted to.
 
     Returns:
-        None without an epipole row (the camera does not move along its axis, or the pair turned) or a road.
+        (H, W) bool; None without an epipole row (the camera does not move along its axis, or the pair turned)
+        or a road.
     """
     if parallax.epipole_row is None:
         return None
@@ -91,7 +94,10 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
     stands on: the lower of the column's first road track (a ground ratio within ``footing_road_tol`` of 1) and
     the object's lowest track (``footing_base``: the lowest track of the column at the track's own inverse
     depth, within ``footing_same_depth``, that is not a road track itself). The excess is
-    ``signed - footing_allowance x footing x gain``. A static track's excess is negative; an oncoming car's
+
+        excess = signed − footing_allowance · footing · gain.
+
+    A static track's excess is negative; an oncoming car's
     is positive (it closes in faster than the camera drives and looks nearer than the road under it).
 
     Args:
@@ -106,7 +112,7 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
         columns: the pair's ``footing_columns`` when the caller has them (found here otherwise).
 
     Returns:
-        Excesses, NaN where not decided; None when the camera does not move forward.
+        (N,) float32 excesses in pixels, NaN where not decided; None when the camera does not move forward.
     """
     if parallax.epipole_row is None:
         return None
@@ -150,9 +156,21 @@ def footing_excess(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None
 
 def footing_allowance(rows: np.ndarray, epipole_row: float, focal: float,
                       config: TrackMotionConfig = TrackMotionConfig()) -> np.ndarray:
-    """The factor over a footing's parallax that a static point's may reach, for footings at ``rows`` (any shape)
-    of a pair whose epipole lies at ``epipole_row`` and whose K has the vertical ``focal`` length:
-    ``1 + footing_margin + footing_overhang x (row - epipole_row) / focal``, the last term the overhang's share of
-    the footing's inverse depth over a level road (``TrackMotionConfig.footing_overhang``)."""
+    """The factor over a footing's parallax that a static point's parallax may reach.
+
+    a = 1 + footing_margin + footing_overhang · max(row − epipole_row, 0) / focal
+
+    the last term the overhang's share of the footing's inverse depth over a level road
+    (``TrackMotionConfig.footing_overhang``).
+
+    Args:
+        rows: (...) rows of the footings (any shape).
+        epipole_row: the pair's epipole row.
+        focal: K's vertical focal length (pixels).
+        config: ``footing_margin`` and ``footing_overhang``.
+
+    Returns:
+        (...) float32 factors.
+    """
     tangent = np.maximum(np.asarray(rows, dtype=np.float32) - np.float32(epipole_row), 0.0) / np.float32(focal)
     return 1.0 + config.footing_margin + config.footing_overhang * tangent

@@ -16,9 +16,20 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 
 
 def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig()) -> float | None:
-    """The ground's inverse depth (x the pair's baseline) per row below the epipole (see
-    ``ground_parallax_ratio``); None when the camera does not move forward or fewer than three bands hold
-    ``ground_band_tracks`` tracks."""
+    """The ground's inverse depth (x the pair's baseline) per row below the epipole.
+
+    slope = lower quartile over bands k of percentile_q(ρ of band k's tracks) / (height of band k's centre), with
+    ρ = signed / gain > 0 and height = row − epipole row > 0 (``ground_parallax_ratio`` explains the bands).
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax``.
+        config: the ground settings.
+
+    Returns:
+        The slope; None when the camera does not move forward or fewer than three bands hold
+        ``ground_band_tracks`` tracks.
+    """
     if parallax.epipole_row is None:
         return None
     height = x1[:, 1] - parallax.epipole_row
@@ -38,7 +49,9 @@ def ground_slope(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig =
 
 def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
                           slope: float | None = None) -> np.ndarray | None:
-    """(N,) float32 each track's signed parallax over the parallax the ground would have at its pixel.
+    """Each track's signed parallax over the parallax the ground would have at its pixel.
+
+    ratio = signed / (slope · (row − epipole row) · gain)
 
     The ground's inverse depth is taken as ``slope x (row - epipole row)`` below the epipole: in each of
     ``ground_bands`` bands of rows there, the ``ground_quantile`` percentile of the tracks' inverse depths
@@ -53,8 +66,8 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotio
         slope: the pair's ``ground_slope`` when the caller has it (computed here otherwise).
 
     Returns:
-        Ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``; None when
-        the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
+        (N,) float32 ratios, NaN above the epipole and where the floor's parallax is below ``ground_min_px``;
+        None when the camera does not move forward or fewer than three bands hold ``ground_band_tracks`` tracks.
     """
     floor = ground_floor(x1, parallax, config, slope)
     return None if floor is None else (parallax.signed / floor).astype(np.float32)
@@ -62,9 +75,20 @@ def ground_parallax_ratio(x1: np.ndarray, parallax: Parallax, config: TrackMotio
 
 def ground_floor(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig = TrackMotionConfig(),
                  slope: float | None = None, rows: np.ndarray | None = None) -> np.ndarray | None:
-    """(N,) float64 the parallax in pixels the ground would have at each track's pixel, or in its column at its
-    ``rows`` when given (``ground_parallax_ratio`` describes the floor); NaN above the epipole and where it is
-    below ``ground_min_px``, None without a slope."""
+    """The parallax the ground would have at each track's pixel: floor = slope · max(row − epipole row, 0) · gain.
+
+    ``ground_parallax_ratio`` describes the floor.
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax``.
+        config: the ground settings.
+        slope: the pair's ``ground_slope`` when the caller has it (computed here otherwise).
+        rows: optional (N,) rows to take in each track's column instead of its own.
+
+    Returns:
+        (N,) float64 pixels, NaN above the epipole and where it is below ``ground_min_px``; None without a slope.
+    """
     if slope is None:
         slope = ground_slope(x1, parallax, config)
     if slope is None:
@@ -77,14 +101,29 @@ def ground_floor(x1: np.ndarray, parallax: Parallax, config: TrackMotionConfig =
 def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
                        config: TrackMotionConfig = TrackMotionConfig(), slope: float | None = None,
                        columns: FootingColumns | None = None) -> np.ndarray | None:
-    """(N,) float32 pixels by which each track falls short of the ground where it stands by both of the shortfall
-    test's measures: min(floor - signed - ``shortfall_px``, ``shortfall_ratio`` x floor - signed), the floor
-    being ``ground_floor`` at its ``standing_rows``, or by both of its strong measures (``shortfall_strong_px``
-    and ``shortfall_strong_ratio``) where that is more. Positive: farther than the ground there by more than
-    ``shortfall_px`` and below ``shortfall_ratio`` of it, or by more than ``shortfall_strong_px`` and below
-    ``shortfall_strong_ratio`` of it (one pair's verdict on both, so that the window's majority,
-    ``short_of_ground``, asks both of the same pairs); NaN and None as ``ground_floor``. ``columns``: the pair's
-    ``footing_columns`` when the caller has them."""
+    """Pixels by which each track falls short of the ground where it stands, by both of the shortfall test's
+    measures.
+
+    margin = floor − signed − min(max(shortfall_px, (1 − shortfall_ratio) · floor),
+                                  max(shortfall_strong_px, (1 − shortfall_strong_ratio) · floor))
+
+    the floor being ``ground_floor`` at the track's ``standing_rows`` (the strong term only when
+    ``shortfall_strong_px`` > 0). Positive: farther than the ground there by more than ``shortfall_px`` and
+    below ``shortfall_ratio`` of it, or by more than ``shortfall_strong_px`` and below ``shortfall_strong_ratio``
+    of it (one pair's verdict on both, so that the window's majority, ``short_of_ground``, asks both of the
+    same pairs).
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax``.
+        ground: optional (N,) ground ratios (for ``footing_columns``).
+        config: the shortfall settings.
+        slope: the pair's ``ground_slope`` when the caller has it.
+        columns: the pair's ``footing_columns`` when the caller has them.
+
+    Returns:
+        (N,) float32 margins; NaN and None as ``ground_floor``.
+    """
     floor = ground_floor(x1, parallax, config, slope, standing_rows(x1, parallax, ground, config, columns))
     if floor is None:
         return None
@@ -99,14 +138,25 @@ def standing_shortfall(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | 
 def standing_rows(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
                   config: TrackMotionConfig = TrackMotionConfig(),
                   columns: FootingColumns | None = None) -> np.ndarray:
-    """(N,) float64 the row each track's object stands on at least: the lowest track below it in its column
-    (``footing_columns``) at its own inverse depth within ``shortfall_same_depth``, or its own row (above the
-    epipole, and without such a track).
+    """The row each track's object stands on at least.
+
+    The lowest track below it in its column (``footing_columns``) at its own inverse depth within
+    ``shortfall_same_depth``, or its own row (above the epipole, and without such a track).
 
     An upright static object is as near as the ground where it stands, and that lies at or below its lowest
     track; a pedestrian walking away looks farther than the ground under its feet from every one of its tracks,
-    while its upper tracks look nearer than the road at their own rows (which lies farther away). ``columns``:
-    the pair's ``footing_columns`` when the caller has them."""
+    while its upper tracks look nearer than the road at their own rows (which lies farther away).
+
+    Args:
+        x1: (N, 2) positions in the pair's earlier frame.
+        parallax: the pair's ``signed_parallax``.
+        ground: optional (N,) ground ratios (for ``footing_columns``).
+        config: ``shortfall_same_depth`` and the column settings.
+        columns: the pair's ``footing_columns`` when the caller has them.
+
+    Returns:
+        (N,) float64 rows.
+    """
     rows = x1[:, 1].astype(np.float64)
     if parallax.epipole_row is None:
         return rows
@@ -118,24 +168,42 @@ def standing_rows(x1: np.ndarray, parallax: Parallax, ground: np.ndarray | None,
 
 
 def decided_ratios(ground: np.ndarray, floor: np.ndarray, config: TrackMotionConfig, noise: float) -> np.ndarray:
-    """(N,) float32 the ``ground`` ratios (``ground_parallax_ratio``) that the ratio test decides on: NaN where the
-    ``floor`` (``ground_floor``, pixels) is below ``ground_ratio_noise`` times the pair's ``noise`` (pixels; the
-    footing and shortfall tests keep every ratio)."""
+    """The ground ratios the ratio test decides on: NaN where floor < ground_ratio_noise · noise.
+
+    The footing and shortfall tests keep every ratio.
+
+    Args:
+        ground: (N,) ratios (``ground_parallax_ratio``).
+        floor: (N,) the ground's parallax (``ground_floor``, pixels).
+        config: ``ground_ratio_noise``.
+        noise: the pair's noise (pixels).
+
+    Returns:
+        (N,) float32 ratios.
+    """
     return np.where(floor >= config.ground_ratio_noise * noise, ground, np.nan).astype(np.float32)
 
 
 def short_of_ground(shortfall: np.ndarray) -> np.ndarray:
-    """(N,) bool: tracks short of the ground where they stand (a positive margin of ``standing_shortfall``,
-    (N, P)) in more than half of the pairs that measured them (``moving_tracks``' ground shortfall test before
-    its ``measurable`` check). A majority rather than the median: the median of an even count averages a pair
-    far short with one that is not."""
+    """Tracks short of the ground where they stand in more than half of the pairs that measured them.
+
+    ``moving_tracks``' ground shortfall test before its ``measurable`` check. A majority rather than the
+    median: the median of an even count averages a pair far short with one that is not.
+
+    Args:
+        shortfall: (N, P) margins of ``standing_shortfall`` (positive = short; NaN = not measured).
+
+    Returns:
+        (N,) bool.
+    """
     return np.count_nonzero(shortfall > 0, axis=1) > 0.5 * np.count_nonzero(~np.isnan(shortfall), axis=1)
 
 
 def aperture_share(gray: np.ndarray, points: np.ndarray, centre: np.ndarray, window: int) -> np.ndarray:
-    """(N,) the share of the image-gradient energy around each point that lies along the line from ``centre``
-    through it: how well a patch tracker measures the point's motion along that line (0 on an edge running
-    along it, the aperture problem; 1 on an edge across it, about 0.5 on a corner).
+    """Share of the image-gradient energy around each point that lies along the line from ``centre`` through it.
+
+    It says how well a patch tracker measures the point's motion along that line (0 on an edge running along
+    it, the aperture problem; 1 on an edge across it, about 0.5 on a corner).
 
     d^T G d / trace(G), with G the structure tensor (summed products of Sobel 3x3 gradients) over a ``window`` x
     ``window`` patch and d the unit direction from ``centre`` to the point. Computed on each point's patch
@@ -146,6 +214,9 @@ def aperture_share(gray: np.ndarray, points: np.ndarray, centre: np.ndarray, win
         points: (N, 2) positions (x, y) in it; outside ones take the nearest border pixel.
         centre: (2,) where the lines start (the epipole of a camera driving forward: its parallax runs from it).
         window: side of the patch, pixels (odd).
+
+    Returns:
+        (N,) shares in [0, 1].
     """
     h, w = gray.shape
     x, y = np.clip(np.rint(points).astype(np.int64), 0, [w - 1, h - 1]).T
