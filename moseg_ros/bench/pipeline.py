@@ -18,6 +18,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +51,8 @@ def floor_ms(frames: list[np.ndarray], config: PipelineConfig = PipelineConfig()
     from moseg_ros.frontend.tracks import PointTracker
     from moseg_ros.methods.moving_objects import front_end_config
 
-    tracks = PointTracker(front_end_config(config).tracks)
+    front_end = front_end_config(config)
+    tracks = PointTracker(replace(front_end.tracks, max_points=front_end.max_tracks))
     flow = DenseFlow(config.dis_preset())
     grays = [to_gray(f, "mono8" if f.ndim == 2 else "rgb8") for f in frames]
     tracking = [resized_to_width(g, config.settings_of("moving_objects").track_width) for g in grays]

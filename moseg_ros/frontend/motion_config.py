@@ -1,4 +1,5 @@
-"""The motion front-end's settings (``MotionFrontEndConfig``): pixels at the dense width unless a share of it."""
+"""The motion front-end's settings: its stages' parameters (``ObserveSettings``, ``RegionSettings``: the method's
+settings) and its constants (``MotionFrontEndConfig``, which holds both); pixels at the dense width unless a share."""
 
 from __future__ import annotations
 
@@ -8,13 +9,31 @@ from moseg_ros.core.baseline import BaselineConfig
 from moseg_ros.core.object_flow import ObjectFlowConfig
 from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.frontend.tracks import TrackerConfig
+from moseg_ros.params import setting
 
 
 @dataclass(frozen=True)
-class MotionFrontEndConfig:
-    """Settings of the motion front-end (pixels at the working resolution unless a fraction of the width)."""
+class ObserveSettings:
+    """The observe stage's settings: how many frames the window holds, how finely and densely the frame is
+    tracked."""
 
-    window_length: int = 8
+    window_length: int = setting(8, "frames in the sliding window", low=3, high=60)
+    track_width: int = setting(1280, "KLT tracks run at this width (pixels)", low=64, high=4096)
+    max_tracks: int = setting(2000, "points tracked per frame", low=50, high=20000)
+
+
+@dataclass(frozen=True)
+class RegionSettings:
+    """The regions stage's settings."""
+
+    min_region_area: int = setting(60, "smallest moving region kept (working pixels)", low=1, high=100000)
+
+
+@dataclass(frozen=True)
+class MotionFrontEndConfig(RegionSettings, ObserveSettings):
+    """Settings of the motion front-end: its stages' parameters and its constants (pixels at the working
+    resolution unless a fraction of the width). ``tracks.max_points`` is ``max_tracks``'s."""
+
     # KLT's window at the tracking width (1280 px): a smaller window drifts less where it straddles a mover's
     # edge (fewer static points flagged) and follows smaller movers, and each point costs less; a dense flow at half
     # resolution guesses each point closely enough for it, where a quarter-resolution flow leaves the tracks more to
@@ -68,7 +87,6 @@ class MotionFrontEndConfig:
     # the horizon came out farther than the road (docs/experiments.md). 0: every track.
     aperture_share: float = 0.25
     aperture_window: int = 7
-    min_region_area: int = 80
     min_texture: float = 1e-3
     texture_reach: int = 12
     smooth_max_flow: float = 8.0

@@ -8,7 +8,7 @@ what the later stages need: the window's track positions, the backward flows, K 
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -19,18 +19,7 @@ from moseg_ros.core.track_tests.settings import TrackMotionConfig
 from moseg_ros.frontend.flow import DenseFlow
 from moseg_ros.frontend.motion_config import MotionFrontEndConfig
 from moseg_ros.frontend.tracks import PointTracker
-from moseg_ros.params import setting
 from moseg_ros.timing import Stages
-
-
-@dataclass(frozen=True)
-class ObserveSettings:
-    """The observe stage's settings: how many frames the window holds, how finely and densely the frame is
-    tracked."""
-
-    window_length: int = setting(8, "frames in the sliding window", low=3, high=60)
-    track_width: int = setting(1280, "KLT tracks run at this width (pixels)", low=64, high=4096)
-    max_tracks: int = setting(2000, "points tracked per frame", low=50, high=20000)
 
 
 def scaled_to(K: np.ndarray, size: tuple[int, int], resized: tuple[int, int]) -> np.ndarray:
@@ -131,7 +120,7 @@ class FrameObserver:
     def __init__(self, config: MotionFrontEndConfig, flow: DenseFlow) -> None:
         self.config = config
         self.flow = flow
-        self._points = PointTracker(config.tracks)
+        self._points = PointTracker(replace(config.tracks, max_points=config.max_tracks))
         self.reset()
 
     def reset(self) -> None:

@@ -9,7 +9,6 @@ for a frame and lasting regions coasting where theirs drops out (frontend/memory
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -25,15 +24,7 @@ from moseg_ros.frontend.memory import NO_EVIDENCE, Coast, carried, coasted, reme
 from moseg_ros.frontend.motion_config import MotionFrontEndConfig
 from moseg_ros.frontend.observe import Observation
 from moseg_ros.frontend.window import WindowFrame
-from moseg_ros.params import setting
 from moseg_ros.timing import Stages
-
-
-@dataclass(frozen=True)
-class RegionSettings:
-    """The regions stage's settings."""
-
-    min_region_area: int = setting(60, "smallest moving region kept (working pixels)", low=1, high=100000)
 
 
 class RegionStage:

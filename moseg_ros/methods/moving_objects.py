@@ -11,7 +11,7 @@ applies are, in frames. docs/method.md has each stage's geometry.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, fields, replace
 from typing import TYPE_CHECKING
 
 import cv2
@@ -22,10 +22,9 @@ from moseg_ros.frontend.fusion import FusionDecision, FusionSchedule, FusionSett
 from moseg_ros.frontend.instance_decisions import (InstanceDecisions, InstanceSettings, published_regions,
                                                    with_unknown_regions)
 from moseg_ros.frontend.motion import MotionFrontEnd
-from moseg_ros.frontend.motion_config import MotionFrontEndConfig
-from moseg_ros.frontend.observe import ObserveSettings, resized_to_width, scaled_to
+from moseg_ros.frontend.motion_config import MotionFrontEndConfig, ObserveSettings, RegionSettings
+from moseg_ros.frontend.observe import resized_to_width, scaled_to
 from moseg_ros.frontend.refit_schedule import RefitSchedule
-from moseg_ros.frontend.regions import RegionSettings
 from moseg_ros.methods.base import Decision, FrameInput, Status
 
 if TYPE_CHECKING:
@@ -38,13 +37,13 @@ class MovingObjectsSettings(InstanceSettings, FusionSettings, RegionSettings, Ob
 
 
 def front_end_config(config: PipelineConfig) -> MotionFrontEndConfig:
-    """The front-end's settings from the pipeline's working size and the method's own settings."""
-    base, own = MotionFrontEndConfig(), config.settings_of("moving_objects")
-    return replace(base, window_length=own.window_length,
-                   tracks=replace(base.tracks, max_points=own.max_tracks, seed_width=config.working_width,
-                                  seed_pixels=config.working_pixels),
-                   dense_width=config.working_width, dense_pixels=config.working_pixels,
-                   min_region_area=own.min_region_area)
+    """The front-end's settings: the method's stage parameters (``config.settings_of("moving_objects")``), the
+    pipeline's working size for the dense flow and the corners seeded, and the front-end's constants."""
+    own = config.settings_of("moving_objects")
+    stages = {f.name: getattr(own, f.name) for f in fields(ObserveSettings) + fields(RegionSettings)}
+    base = MotionFrontEndConfig(**stages)
+    tracks = replace(base.tracks, seed_width=config.working_width, seed_pixels=config.working_pixels)
+    return replace(base, tracks=tracks, dense_width=config.working_width, dense_pixels=config.working_pixels)
 
 
 class MovingObjects:

@@ -607,6 +607,35 @@ class _Atlas:
         """Level-0 atlas column C_i of a texture."""
         return float(self.columns[id(texture)])
 
+    def shade(self, surface: _Surface) -> np.ndarray:
+        """Trilinear texture look-up: bilinear in the two mip levels around each pixel's level, blended.
+
+        Level l: atlas column a 2^-l, row _mip_row(l) + b 2^-l (see _Atlas); level l + 1 halves both offsets
+        and starts T_max 2^-l + 1 rows further down. ``surface`` is consumed (its arrays are reused).
+        """
+        level = np.clip(surface.level, 0, _MAX_LEVEL, out=surface.level)
+        low = np.floor(level)
+        frac = level - low
+        scale = np.exp2(-low)
+        x = surface.a * scale
+        b = surface.b
+        b *= scale
+        row = scale * np.float32(-2 * _ATLAS_TILE)
+        row += low
+        row += np.float32(2 * _ATLAS_TILE)
+        y = b + row
+        fine = cv2.remap(self.image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        x *= 0.5
+        b *= 0.5
+        scale *= np.float32(_ATLAS_TILE)
+        row += scale
+        row += 1.0
+        np.add(b, row, out=y)
+        coarse = cv2.remap(self.image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        # Blending 3 channels is cheaper than dropping alpha after blending 4.
+        return cv2.blendLinear(cv2.cvtColor(fine, cv2.COLOR_RGBA2RGB), cv2.cvtColor(coarse, cv2.COLOR_RGBA2RGB),
+                               1.0 - frac, frac)
+
 
 @dataclass
 class _Surface:
@@ -821,37 +850,6 @@ class StreetRenderer:
         cv2.copyTo(level, mask, surface.level[view])
         cv2.copyTo(np.full(hit.shape, self._ids[n], dtype=np.int32), mask, surface.ids[view])
 
-    # -- shading --------------------------------------------------------------------------------------
-
-    def _shade(self, surface: _Surface) -> np.ndarray:
-        """Trilinear texture look-up: bilinear in the two mip levels around each pixel's level, blended.
-
-        Level l: atlas column a 2^-l, row _mip_row(l) + b 2^-l (see _Atlas); level l + 1 halves both offsets
-        and starts T_max 2^-l + 1 rows further down. ``surface`` is consumed (its arrays are reused).
-        """
-        level = np.clip(surface.level, 0, _MAX_LEVEL, out=surface.level)
-        low = np.floor(level)
-        frac = level - low
-        scale = np.exp2(-low)
-        x = surface.a * scale
-        b = surface.b
-        b *= scale
-        row = scale * np.float32(-2 * _ATLAS_TILE)
-        row += low
-        row += np.float32(2 * _ATLAS_TILE)
-        y = b + row
-        fine = cv2.remap(self.atlas.image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        x *= 0.5
-        b *= 0.5
-        scale *= np.float32(_ATLAS_TILE)
-        row += scale
-        row += 1.0
-        np.add(b, row, out=y)
-        coarse = cv2.remap(self.atlas.image, x, y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        # Blending 3 channels is cheaper than dropping alpha after blending 4.
-        return cv2.blendLinear(cv2.cvtColor(fine, cv2.COLOR_RGBA2RGB), cv2.cvtColor(coarse, cv2.COLOR_RGBA2RGB),
-                               1.0 - frac, frac)
-
     def render(self, t: int) -> SynthFrame:
         """Render frame ``t`` with its ground truth."""
         scene = self.scene
@@ -862,7 +860,7 @@ class StreetRenderer:
         surface = self._static(R, centre)
         self._boxes(t, surface, R, centre)
         depth, ids = surface.depth, surface.ids
-        rgb = self._shade(surface)
+        rgb = self.atlas.shade(surface)
         return SynthFrame(rgb=rgb, instances=ids, dynamic=self._moving[:, t][ids], depth=depth,
                           pose=pose.copy(), stamp_ns=int(scene.stamps_ns[t]))
 
