@@ -27,6 +27,7 @@ from moseg_ros.methods import method_class
 from moseg_ros.methods.base import FrameInput, Status
 from moseg_ros.render import Masks, render_masks
 from moseg_ros.timing import Stages
+from moseg_ros.wait import wait_policy
 
 __all__ = ["FrameResult", "Pipeline", "PipelineConfig"]
 
@@ -192,7 +193,7 @@ class Pipeline:
         h, w = self._working_size(*full.shape)
         if instances is not None:  # ids <= 0 are no instance (segmenters mark "none" with 0 or -1)
             instances = cv2.resize(np.maximum(instances, 0).astype(np.int32), (w, h), interpolation=cv2.INTER_NEAREST)
-        return FrameInput(full, (h, w), instances, camera_matrix, next_frame_at)
+        return FrameInput(full, (h, w), instances, camera_matrix, wait_policy(self.config.refit_wait_ms, next_frame_at))
 
     def failed(self, stamp_ns: int, size: tuple[int, int], error: BaseException,
                start: float | None = None) -> FrameResult:

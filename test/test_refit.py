@@ -348,7 +348,7 @@ class TestPipelineWithBackgroundRefit:
         """The next frame 0.1 s after each frame starts; the first refits are quick, the later ones take 0.5 s.
         Frames after a quick refit wait, but no longer than AUTO_WAIT_SHARE of what is left of that 0.1 s; once
         a refit took longer than that, no frame waits (the wait could not bring its own refit)."""
-        from moseg_ros.frontend.refit_schedule import AUTO_WAIT_SHARE
+        from moseg_ros.wait import AUTO_WAIT_SHARE
 
         original = MotionEvidence.refit_tracks
         sleeps = iter([0.0] * 3 + [0.5] * 20)
@@ -437,7 +437,7 @@ class TestPipelineWithBackgroundRefit:
         whole refit never fits in the time left (three quarters of it), its track half does, and the worker (fitting
         back to back) is free again before the next frame, so every frame after the first decisions gets its own
         track flags (age 0), waiting no longer than AUTO_WAIT_SHARE of that 0.4 s."""
-        from moseg_ros.frontend.refit_schedule import AUTO_WAIT_SHARE
+        from moseg_ros.wait import AUTO_WAIT_SHARE
 
         original = MotionEvidence.refit_dense
 

@@ -3,9 +3,9 @@
 "inline": every frame's refit on the frame path (deterministic: the offline tools). "background": on a
 ``BackgroundRefit`` worker; a frame submits its ``Observation`` and applies the newest ``Refit`` done. Each refit
 hands its track half over first and its dense half after it; while whole refits take longer than the camera's frame
-interval, only every ``refit_dense_every``-th fits its dense half. A frame waits for its own refit for
-``refit_wait_ms``, or with -1 for a share of the time until the camera's next frame (the whole refit when it fits
-there, else its track half); the stream's first decisions, up to the first with a track pair, always wait.
+interval, only every ``refit_dense_every``-th fits its dense half. How long a frame may wait for its own refit is
+the pipeline's ``WaitPolicy`` (moseg_ros/wait.py); within an adaptive budget it waits for the whole refit when that
+fits, else for its track half; the stream's first decisions, up to the first with a track pair, always wait.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ from moseg_ros.frontend.evidence import Refit
 from moseg_ros.frontend.motion import MotionFrontEnd
 from moseg_ros.frontend.observe import Observation
 from moseg_ros.refit import BackgroundRefit, raise_worker_error
+from moseg_ros.wait import WaitPolicy
 
 if TYPE_CHECKING:
     from moseg_ros.config import PipelineConfig
@@ -25,9 +26,6 @@ if TYPE_CHECKING:
 # The longest each of the stream's first decisions waits for its refit: a worker that takes longer leaves the frame
 # with what there is, as before any refit.
 FIRST_REFIT_WAIT_S = 1.0
-# With ``refit_wait_ms`` -1 a frame waits for its refit at most this share of the time left until the camera's next
-# frame: the rest is for drawing the decision and rendering the masks, so that the next frame starts on time.
-AUTO_WAIT_SHARE = 0.75
 
 
 @dataclass(frozen=True)
@@ -83,29 +81,26 @@ class RefitSchedule:
         if self.worker is not None:
             self.worker.stop()
 
-    def refit(self, observation: Observation, next_frame_at: float | None) -> tuple[Refit | None, float, bool]:
+    def refit(self, observation: Observation, wait: WaitPolicy) -> tuple[Refit | None, float, bool]:
         """The refit ``observation``'s frame applies (its own inline; on the worker the newest done, after waiting
         as the module's docstring says), the seconds it waited, and whether this is the first frame to apply that
         refit (its ``stages`` are then new)."""
         if self.worker is None:
             refit, waited = self._front_end.refit(observation), 0.0
         else:
-            refit, waited = self._background(observation, self._wait_seconds(next_frame_at))
+            refit, waited = self._background(observation, self._wait_seconds(wait))
         new = refit is not None and (refit.index, refit.dense_index) != self._applied
         if new:
             self._applied = (refit.index, refit.dense_index)
         return refit, waited, new
 
-    def _wait_seconds(self, next_frame_at: float | None) -> tuple[float, bool]:
-        """How long this frame may wait for its own refit, and whether for the whole of it (else its track half):
-        ``refit_wait_ms`` for the whole, or with -1 ``AUTO_WAIT_SHARE`` of the time until the camera's next frame,
-        for the whole refit when it fits in that time, else for its track half when that does (none when the next
-        frame's time is not known)."""
-        if self.config.refit_wait_ms >= 0:
-            return self.config.refit_wait_ms / 1e3, True
-        if next_frame_at is None:
-            return 0.0, True
-        budget = AUTO_WAIT_SHARE * (next_frame_at - time.monotonic())
+    def _wait_seconds(self, wait: WaitPolicy) -> tuple[float, bool]:
+        """How long this frame waits for its own refit, and whether for the whole of it (else its track half): a
+        fixed budget (the pipeline's ``WaitPolicy``) for the whole; an adaptive one for the whole refit when it fits
+        in it, else for its track half when that does, else not at all."""
+        budget, fixed = wait.budget()
+        if fixed:
+            return budget, True
         latest = self.worker.latest()
         track, whole = (0.0, 0.0) if latest is None else (latest.track_seconds, latest.whole_seconds)
         # A wait shorter than a refit takes would end with the same older refit and only make the frame later.

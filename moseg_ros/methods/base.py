@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING, ClassVar, Protocol
 import cv2
 import numpy as np
 
+from moseg_ros.wait import WaitPolicy
+
 if TYPE_CHECKING:
     from moseg_ros.config import PipelineConfig
 
@@ -35,15 +37,14 @@ class FrameInput:
         working_size: (h, w) of the working resolution.
         instances: (h, w) int32 upstream instance ids at the working resolution, or None.
         camera_matrix: (3, 3) K at the input resolution (from camera_info), or None when uncalibrated.
-        next_frame_at: when (``time.monotonic()``) the camera's next frame is expected, so that a method may use
-            the time until then (None: not known, or frames come back to back).
+        wait: how long the frame may wait for the method's background work (the pipeline's ``WaitPolicy``).
     """
 
     full: np.ndarray
     working_size: tuple[int, int]
     instances: np.ndarray | None = None
     camera_matrix: np.ndarray | None = None
-    next_frame_at: float | None = None
+    wait: WaitPolicy = field(default_factory=WaitPolicy)
 
     @functools.cached_property
     def gray(self) -> np.ndarray:

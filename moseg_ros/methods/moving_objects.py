@@ -81,7 +81,7 @@ class MovingObjects:
         tracking = resized_to_width(frame.full, self.settings.track_width)
         K = None if frame.camera_matrix is None else scaled_to(frame.camera_matrix, frame.full.shape, tracking.shape)
         observation = self._front_end.observe(tracking, K)
-        refit, waited, new_refit = self._refits.refit(observation, frame.next_frame_at)
+        refit, waited, new_refit = self._refits.refit(observation, frame.wait)
         labels = self._front_end.apply(refit)
         first = observation.index == 0
         telemetry: dict[str, float] = {}
