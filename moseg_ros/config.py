@@ -255,10 +255,9 @@ def _pipeline_config(args: argparse.Namespace) -> PipelineConfig:
     if getattr(args, "method", None):
         values["method"] = args.method
     schema = pipeline_settings()
-    first = {}
-    for entry in schema:
-        first.setdefault(entry.name.partition(".")[2] or entry.name, entry)
-    aliases = [dataclasses.replace(entry, name=name) for name, entry in first.items() if name in bare_names()]
+    by_name = {entry.name: entry for entry in schema}
+    # A bare name parses as its first method's setting (every method that has it declares the same type).
+    aliases = [dataclasses.replace(by_name[nested[0]], name=bare) for bare, nested in bare_names().items()]
     values.update(nested_values(apply_overrides({}, getattr(args, "set", []), schema + aliases), warn))
     config = config_from_values(values)
     config.validate()
